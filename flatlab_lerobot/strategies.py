@@ -1,0 +1,369 @@
+"""Strategies A / B / C as sequences of primitives, and the scripted expert that poses them.
+
+The expert only reads *privileged state* (``environment_state``: object pose, size, material,
+table height and edge) plus the robot's joints, so the same code runs in-process
+(``flatlab demo``) and as a LeRobot policy (``flatlab_scripted``).  Each stage is a function
+``stage(expert, world) -> Primitive`` evaluated when the stage starts, on the state at that
+moment: after the slide of strategy A, the grasp is aimed at where the book really ended up.
+
+A: press the object and slide it until it overhangs the usable edge; grasp the overhang from
+   the side (fingers above and below it); lift.
+B: two arms touch opposite sides, squeeze, lift together.
+C: two closed grippers press the sheet and slide towards each other to raise a fold; one
+   gripper straddles the fold and pinches it while the other still pins the sheet; lift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from flatlab_lerobot.primitives import ArmMotion, Primitive, PrimitiveRunner
+from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, ArmIndex, DualArmIK, tcp_rotation
+from flatlab_lerobot.sim.scene import CellConfig, build_model
+
+ENV_STATE_DIM = 14
+ENV_STATE_NAMES = (
+    "obj_x", "obj_y", "obj_z", "obj_qw", "obj_qx", "obj_qy", "obj_qz",
+    "obj_size_x", "obj_size_y", "obj_size_z", "deformable", "table_height", "table_edge_x", "obj_mass",
+)  # fmt: skip
+DOWN = np.array([0.0, 0.0, -1.0])
+FINGER_TIP_BELOW_TCP = 0.007  # finger tips sit this far beyond the TCP along the approach (m)
+FINGER_HALF_WIDTH = 0.01  # half thickness of a finger along the hand x axis (m)
+
+
+@dataclass
+class World:
+    """The expert's view of the scene, parsed from ``environment_state``."""
+
+    pos: np.ndarray
+    yaw: float
+    size: np.ndarray
+    deformable: bool
+    table_height: float
+    edge_x: float
+
+    @classmethod
+    def from_vector(cls, v) -> "World":
+        v = np.asarray(v, dtype=float)
+        qw, qz = v[3], v[6]
+        return cls(v[0:3], float(2 * np.arctan2(qz, qw)), v[7:10], bool(v[10] > 0.5), float(v[11]), float(v[12]))
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray]:
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        return np.array([c, s, 0.0]), np.array([-s, c, 0.0])
+
+    def corners_xy(self) -> np.ndarray:
+        ex, ey = self.axes()
+        hx, hy = self.size[0] / 2, self.size[1] / 2
+        return np.array([self.pos + sx * hx * ex + sy * hy * ey for sx in (-1, 1) for sy in (-1, 1)])[:, :2]
+
+    def squeeze_axis(self) -> tuple[np.ndarray, float]:
+        """The object's horizontal axis closest to world y (pointing to +y), and the half extent along it."""
+        ex, ey = self.axes()
+        if abs(ex[1]) > abs(ey[1]):
+            u, half = ex, self.size[0] / 2
+        else:
+            u, half = ey, self.size[1] / 2
+        return (u if u[1] >= 0 else -u), float(half)
+
+
+def _p(*xyz) -> np.ndarray:
+    return np.array(xyz, dtype=float)
+
+
+def _rel(pose, dp):
+    return (pose[0] + np.asarray(dp, float), pose[1])
+
+
+IK_SEEDS = [
+    np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785398]),  # home: hand down
+    np.array([0.0, 0.4, 0.0, -2.0, 0.0, 2.4, 0.785398]),  # reaching low and far, hand down
+    np.array([0.8, 0.8, 0.0, -1.6, -1.5, 1.6, 0.0]),  # hand sideways, low
+    np.array([-0.8, 0.8, 0.0, -1.6, 1.5, 1.6, 0.0]),
+    np.array([0.0, 1.0, 0.0, -1.0, 0.0, 2.0, 0.0]),
+]
+IK_SEEDS += [s * np.array([-1, 1, -1, 1, -1, 1, -1]) for s in IK_SEEDS]  # mirror images
+"""Seed postures for IK of far-away goals (differential IK is local)."""
+
+
+class Expert:
+    """Scripted expert with its own kinematic model of the two arms (no object)."""
+
+    def __init__(self, cell: CellConfig | None = None, control_dt: float = 0.1):
+        self.cell = cell or CellConfig()
+        self.model = build_model(self.cell, None)
+        self.data = mujoco.MjData(self.model)
+        self.arms = {a: ArmIndex.build(self.model, a) for a in ARMS}
+        self._ik = DualArmIK(self.model, self.arms)
+        self.runner = PrimitiveRunner(self.ik, self.fk, control_dt)
+        self.control_dt = control_dt
+
+    # kinematics on the 14 arm joints ------------------------------------------------------
+    def _set(self, q14):
+        for i, a in enumerate(ARMS):
+            self.data.qpos[self.arms[a].qpos] = q14[7 * i : 7 * i + 7]
+
+    def fk(self, q14) -> dict:
+        self._set(q14)
+        mujoco.mj_kinematics(self.model, self.data)
+        return {
+            a: (self.data.site_xpos[i.tcp_site].copy(), self.data.site_xmat[i.tcp_site].reshape(3, 3).copy())
+            for a, i in self.arms.items()
+        }
+
+    def ik(self, targets, q14, far: bool = False) -> np.ndarray:
+        """Joint targets reaching ``targets``.  ``far``: the goal may be far from ``q14`` (a transit),
+        so also try canned seed postures and keep the best solution."""
+        seeds = [q14]
+        if far:
+            seeds += [np.r_[s if "left" in targets else q14[:7], s if "right" in targets else q14[7:]] for s in IK_SEEDS]
+        best, best_err = None, np.inf
+        for seed in seeds:
+            self._set(seed)
+            q, err = self._ik.solve(self.data.qpos, targets, iterations=20 if not far else 150)
+            if err < best_err:
+                best, best_err = q, err
+            if err < 1e-3:
+                break
+        return np.concatenate([best[self.arms[a].qpos] for a in ARMS])
+
+    # the episode --------------------------------------------------------------------------
+    def episode(self, strategy: str, observe):
+        """Generator of (stage name, primitive index, action (16,)) for a whole strategy.
+
+        ``observe()`` returns (agent_pos (16,), environment_state (14,)) of the *current* step;
+        it is called at the start of every primitive.  After the last primitive the final
+        action is repeated forever (the arm holds)."""
+        if strategy not in STRATEGIES:
+            raise ValueError(f"unknown strategy {strategy!r}; choose from {sorted(STRATEGIES)}")
+        agent_pos, _ = observe()
+        q = np.r_[agent_pos[0:7], agent_pos[8:15]]
+        grip = {"left": float(agent_pos[7]), "right": float(agent_pos[15])}
+        action = PrimitiveRunner._action(q, grip)
+        ctx: dict = {}  # choices that hold for the whole episode (e.g. which arm pushes in A)
+        for i, stage in enumerate(STRATEGIES[strategy]):
+            _, env_state = observe()
+            world = World.from_vector(env_state)
+            poses = self.fk(q)
+            prim = stage(self, world, poses, grip, ctx)
+            for name, action in self.runner.actions(prim, q, grip):
+                yield name, i, action
+            q, grip = self.runner.q, self.runner.grip
+        while True:
+            yield "hold", len(STRATEGIES[strategy]) - 1, action
+
+
+# ---------------------------------------------------------------------------- strategy A
+A_OVERHANG = 0.085  # how far the object is pushed past the edge (m)
+A_GRASP_X = 0.038  # grasp line beyond the edge (m): the hand body must clear the table
+A_PRESS_DEPTH = 0.004  # press target below the object top (m)
+
+
+def _a_arm(world: World, ctx: dict) -> str:
+    """The arm that pushes and grasps: the one on the object's side, chosen once per episode."""
+    return ctx.setdefault("arm", "right" if world.pos[1] <= 0 else "left")
+
+
+def _a_press_pose(world: World):
+    top = world.table_height + world.size[2]
+    p = world.pos.copy()
+    p[0] -= 0.02
+    p[2] = top + FINGER_TIP_BELOW_TCP - A_PRESS_DEPTH
+    return p, tcp_rotation(DOWN, [0.0, 1.0, 0.0])
+
+
+def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    p, R = _a_press_pose(w)
+    above = (p + _p(0, 0, 0.06), R)
+    return Primitive("touch", {arm: ArmMotion(above, (p + _p(0, 0, A_PRESS_DEPTH + 0.002), R), (0.0, 0.0))}, 0.6, transit=1.5)
+
+
+def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    start = poses[arm]
+    return Primitive("press", {arm: ArmMotion(start, _rel(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (0.0, 0.0))}, 0.4)
+
+
+def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    front = w.corners_xy()[:, 0].max()
+    dist = max(0.0, w.edge_x + A_OVERHANG - front)
+    start = poses[arm]
+    return Primitive("slide", {arm: ArmMotion(start, _rel(start, (dist, 0, 0)), (0.0, 0.0))}, max(0.5, dist / 0.08))
+
+
+def a_release(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    start = poses[arm]
+    return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.08)), (0.0, 0.06))}, 0.6)
+
+
+def _a_grasp_geometry(w: World, ctx: dict):
+    """Grasp line x, the y where the grasp line enters the overhang from the arm's side, and the
+    approach direction (+y for the right arm, -y for the left)."""
+    arm = _a_arm(w, ctx)
+    gx = w.edge_x + A_GRASP_X
+    corners = w.corners_xy()
+    # intersect the footprint polygon with the line x = gx
+    order = [0, 1, 3, 2]
+    ys = []
+    for i in range(4):
+        a, b = corners[order[i]], corners[order[(i + 1) % 4]]
+        if (a[0] - gx) * (b[0] - gx) <= 0 and abs(b[0] - a[0]) > 1e-9:
+            t = (gx - a[0]) / (b[0] - a[0])
+            ys.append(a[1] + t * (b[1] - a[1]))
+    if not ys:  # the object does not reach the grasp line: aim at its front-most point
+        ys = [corners[np.argmax(corners[:, 0]), 1]]
+    direction = 1.0 if arm == "right" else -1.0
+    near = min(ys) if direction > 0 else max(ys)
+    return arm, gx, near, direction
+
+
+def a_approach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm, gx, near, d = _a_grasp_geometry(w, ctx)
+    z = w.table_height + w.size[2] / 2
+    R = tcp_rotation([0.0, d, 0.0], [0.0, 0.0, 1.0])
+    start = (_p(gx, near - d * 0.07, z), R)
+    end = (_p(gx, near + d * 0.018, z), R)
+    return Primitive("touch", {arm: ArmMotion(start, end, (0.06, 0.06))}, 1.0, transit=2.0)
+
+
+def a_grasp(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (0.06, 0.0))}, 0.6)
+
+
+def a_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm = _a_arm(w, ctx)
+    start = poses[arm]
+    return Primitive("lift", {arm: ArmMotion(start, _rel(start, (0.06, 0, 0.16)), (0.0, 0.0))}, 1.6)
+
+
+def hold(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 2.6)
+
+
+# ---------------------------------------------------------------------------- strategy B
+B_OPEN = GRIPPER_MAX_WIDTH  # open fingers: two contact patches far apart resist tilting
+B_SQUEEZE = 0.025  # how far each hand is commanded past the touched face (m)
+
+
+def _b_targets(w: World, inset: float, dz: float = 0.0):
+    u, half = w.squeeze_axis()
+    z = w.table_height + max(0.014, w.size[2] - 0.04) + dz
+    f = np.cross(_p(0, 0, 1), u)
+    R = tcp_rotation(DOWN, f)
+    out = {}
+    for arm, s in (("left", 1.0), ("right", -1.0)):
+        p = w.pos + s * (half + FINGER_HALF_WIDTH - inset) * u
+        out[arm] = (_p(p[0], p[1], z), R)
+    return out
+
+
+def b_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    far, near = _b_targets(w, -0.04), _b_targets(w, 0.0)
+    return Primitive("touch", {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}, 1.0, transit=2.0)
+
+
+def b_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive(
+        "squeeze", {a: ArmMotion(poses[a], _rel(poses[a], _b_inward(w, a) * B_SQUEEZE), (B_OPEN, B_OPEN)) for a in ARMS}, 0.6
+    )
+
+
+def _b_inward(w: World, arm: str) -> np.ndarray:
+    u, _ = w.squeeze_axis()
+    return -u if arm == "left" else u
+
+
+def b_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive("lift", {a: ArmMotion(poses[a], _rel(poses[a], (0, 0, 0.16)), (B_OPEN, B_OPEN)) for a in ARMS}, 1.6)
+
+
+# ---------------------------------------------------------------------------- strategy C
+C_PRESS_TIP_Z = 0.001  # finger tips this far above the table while pressing cloth (m)
+C_START_FRAC = 0.42  # press points at +-this fraction of the sheet's extent from its centre
+C_END_HALF_GAP = 0.05  # the pressing hands stop this far from the centre (m)
+C_PINCH_OPEN = 0.06  # gripper opening when straddling the fold (m)
+
+
+def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = False):
+    u, half = w.squeeze_axis()
+    p = w.pos + s * dist * u
+    f = u if finger_along_u else np.cross(_p(0, 0, 1), u)
+    return _p(p[0], p[1], w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP + dz), tcp_rotation(DOWN, f)
+
+
+def c_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    _, half = w.squeeze_axis()
+    d = C_START_FRAC * 2 * half
+    return Primitive(
+        "touch",
+        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (0.0, 0.0)) for a, s in (("left", 1), ("right", -1))},
+        0.8,
+        transit=2.0,
+    )
+
+
+def c_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    motions = {}
+    for a, s in (("left", 1.0), ("right", -1.0)):
+        u, _ = w.squeeze_axis()
+        start = poses[a]
+        end_xy = w.pos + s * C_END_HALF_GAP * u
+        motions[a] = ArmMotion(start, (_p(end_xy[0], end_xy[1], start[0][2]), start[1]), (0.0, 0.0))
+    return Primitive("squeeze", motions, 1.6)
+
+
+def c_release_right(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive(
+        "release",
+        {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (0.0, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], 0.0)},
+        0.5,
+    )
+
+
+def c_straddle(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """Right gripper, open, fingers either side of the fold (between the pressing hands)."""
+    left_p = poses["left"][0]
+    u, _ = w.squeeze_axis()
+    centre = left_p - u * (C_END_HALF_GAP + 0.0)
+    R = tcp_rotation(DOWN, u)
+    z = w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
+    start = (_p(centre[0], centre[1], z + 0.06), R)
+    end = (_p(centre[0], centre[1], z), R)
+    return Primitive(
+        "press", {"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], 0.0)}, 0.8, transit=1.5
+    )
+
+
+def c_pinch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive(
+        "grasp",
+        {"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": ArmMotion.still(poses["left"], 0.0)},
+        0.8,
+    )
+
+
+def c_release_left(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive(
+        "release",
+        {"left": ArmMotion(poses["left"], _rel(poses["left"], (0, 0.0, 0.1)), (0.0, 0.0)), "right": ArmMotion.still(poses["right"], 0.0)},
+        0.6,
+    )
+
+
+def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive("lift", {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.32)), (0.0, 0.0))}, 2.0)
+
+
+STRATEGIES = {
+    "A": (a_touch, a_press, a_slide, a_release, a_approach, a_grasp, a_lift, hold),
+    "B": (b_touch, b_squeeze, b_lift, hold),
+    "C": (c_touch, c_squeeze, c_release_right, c_straddle, c_pinch, c_release_left, c_lift, hold),
+}
+"""Each strategy as its sequence of stages (each stage poses one primitive)."""
