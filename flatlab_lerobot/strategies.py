@@ -126,7 +126,7 @@ class Expert:
             q, err = self._ik.solve(self.data.qpos, targets, iterations=20 if not far else 150)
             if err < best_err:
                 best, best_err = q, err
-            if err < 1e-3:
+            if err < 5e-3:
                 break
         return np.concatenate([best[self.arms[a].qpos] for a in ARMS])
 
@@ -158,8 +158,11 @@ class Expert:
 
 # ---------------------------------------------------------------------------- strategy A
 A_OVERHANG = 0.085  # how far the object is pushed past the edge (m)
-A_GRASP_X = 0.038  # grasp line beyond the edge (m): the hand body must clear the table
-A_PRESS_DEPTH = 0.004  # press target below the object top (m)
+A_APPROACH_YAW = 35.0  # the hand approaches the overhang from the front, turned this much to its side (deg)
+A_INSET = 0.032  # the pinch point lies this far inside the object's front boundary (m) ...
+A_MIN_BEYOND_EDGE = 0.02  # ... and at least this far beyond the table edge, so the fingers clear it (m)
+A_OPEN = 0.06  # gripper opening while approaching the overhang (m)
+A_PRESS_DEPTH = 0.0005  # press target below the object top (m): the arm is stiff, ~10 N
 
 
 def _a_arm(world: World, ctx: dict) -> str:
@@ -175,8 +178,24 @@ def _a_press_pose(world: World):
     return p, tcp_rotation(DOWN, [0.0, 1.0, 0.0])
 
 
+def _a_overhang_missing(w: World) -> float:
+    """How much further the object must go past the edge (m); 0 when it overhangs enough."""
+    return max(0.0, w.edge_x + A_OVERHANG - w.corners_xy()[:, 0].max())
+
+
+def _a_skip(w: World, poses, grip, ctx) -> Primitive | None:
+    """The second push pass is skipped (a 0.1 s hold) when the first one pushed far enough."""
+    if ctx.get("pass", 0) >= 1 and _a_overhang_missing(w) < 0.01:
+        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
+    return None
+
+
 def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
+    if (skip := _a_skip(w, poses, grip, ctx)) is not None:
+        ctx["skipping"] = True
+        return skip
+    ctx["skipping"] = False
     p, R = _a_press_pose(w)
     above = (p + _p(0, 0, 0.06), R)
     return Primitive("touch", {arm: ArmMotion(above, (p + _p(0, 0, A_PRESS_DEPTH + 0.002), R), (0.0, 0.0))}, 0.6, transit=1.5)
@@ -184,57 +203,75 @@ def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
+    if ctx["skipping"]:
+        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
     start = poses[arm]
     return Primitive("press", {arm: ArmMotion(start, _rel(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (0.0, 0.0))}, 0.4)
 
 
 def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
-    front = w.corners_xy()[:, 0].max()
-    dist = max(0.0, w.edge_x + A_OVERHANG - front)
+    if ctx["skipping"]:
+        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
+    dist = _a_overhang_missing(w)
     start = poses[arm]
     return Primitive("slide", {arm: ArmMotion(start, _rel(start, (dist, 0, 0)), (0.0, 0.0))}, max(0.5, dist / 0.08))
 
 
 def a_release(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
+    ctx["pass"] = ctx.get("pass", 0) + 1
+    if ctx["skipping"]:
+        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
     start = poses[arm]
-    return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.08)), (0.0, 0.06))}, 0.6)
+    return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.12)), (0.0, A_OPEN))}, 0.8)
+
+
+def _polygon_hits(corners: np.ndarray, axis: int, value: float) -> list[float]:
+    """Other coordinate of the points where the footprint polygon crosses ``coord[axis] = value``."""
+    order = [0, 1, 3, 2]
+    hits = []
+    for i in range(4):
+        a, b = corners[order[i]], corners[order[(i + 1) % 4]]
+        if (a[axis] - value) * (b[axis] - value) <= 0 and abs(b[axis] - a[axis]) > 1e-9:
+            t = (value - a[axis]) / (b[axis] - a[axis])
+            hits.append(a[1 - axis] + t * (b[1 - axis] - a[1 - axis]))
+    return hits
 
 
 def _a_grasp_geometry(w: World, ctx: dict):
-    """Grasp line x, the y where the grasp line enters the overhang from the arm's side, and the
-    approach direction (+y for the right arm, -y for the left)."""
+    """Where the fingers pinch the overhang: the end point E of the approach and the approach
+    direction.  The hand comes horizontally from the front, turned A_APPROACH_YAW towards the
+    arm's side (reachable, and the wrist stays clear of the table), enters the overhang at the
+    object's centre line and stops A_INSET inside its front boundary."""
     arm = _a_arm(w, ctx)
-    gx = w.edge_x + A_GRASP_X
-    corners = w.corners_xy()
-    # intersect the footprint polygon with the line x = gx
-    order = [0, 1, 3, 2]
-    ys = []
-    for i in range(4):
-        a, b = corners[order[i]], corners[order[(i + 1) % 4]]
-        if (a[0] - gx) * (b[0] - gx) <= 0 and abs(b[0] - a[0]) > 1e-9:
-            t = (gx - a[0]) / (b[0] - a[0])
-            ys.append(a[1] + t * (b[1] - a[1]))
-    if not ys:  # the object does not reach the grasp line: aim at its front-most point
-        ys = [corners[np.argmax(corners[:, 0]), 1]]
-    direction = 1.0 if arm == "right" else -1.0
-    near = min(ys) if direction > 0 else max(ys)
-    return arm, gx, near, direction
+    dy = 1.0 if arm == "right" else -1.0
+    yaw = np.radians(A_APPROACH_YAW)
+    approach = _p(-np.cos(yaw), dy * np.sin(yaw), 0.0)
+    yc = float(w.pos[1])
+    hits = _polygon_hits(w.corners_xy(), 1, yc)
+    front = max(hits) if hits else float(w.corners_xy()[:, 0].max())
+    end = _p(front, yc, w.table_height + w.size[2] / 2) + A_INSET * approach
+    end[0] = max(end[0], w.edge_x + A_MIN_BEYOND_EDGE)
+    return arm, end, approach
+
+
+def a_preapproach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    arm, end, a = _a_grasp_geometry(w, ctx)
+    R = tcp_rotation(a, [0.0, 0.0, 1.0])
+    p = end - 0.16 * a + _p(0, 0, 0.15)
+    return Primitive("move", {arm: ArmMotion((p, R), (p, R), (A_OPEN, A_OPEN))}, 0.2, transit=2.0)
 
 
 def a_approach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    arm, gx, near, d = _a_grasp_geometry(w, ctx)
-    z = w.table_height + w.size[2] / 2
-    R = tcp_rotation([0.0, d, 0.0], [0.0, 0.0, 1.0])
-    start = (_p(gx, near - d * 0.07, z), R)
-    end = (_p(gx, near + d * 0.018, z), R)
-    return Primitive("touch", {arm: ArmMotion(start, end, (0.06, 0.06))}, 1.0, transit=2.0)
+    arm, end, a = _a_grasp_geometry(w, ctx)
+    R = tcp_rotation(a, [0.0, 0.0, 1.0])
+    return Primitive("touch", {arm: ArmMotion((end - 0.08 * a, R), (end, R), (A_OPEN, A_OPEN))}, 1.0, transit=1.0)
 
 
 def a_grasp(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
-    return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (0.06, 0.0))}, 0.6)
+    return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))}, 0.6)
 
 
 def a_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -289,6 +326,8 @@ C_PRESS_TIP_Z = 0.001  # finger tips this far above the table while pressing clo
 C_START_FRAC = 0.42  # press points at +-this fraction of the sheet's extent from its centre
 C_END_HALF_GAP = 0.05  # the pressing hands stop this far from the centre (m)
 C_PINCH_OPEN = 0.06  # gripper opening when straddling the fold (m)
+C_PRESS_OPEN = GRIPPER_MAX_WIDTH  # pressing with open fingers: no cloth gets caught between them
+C_LEFT_AWAY = 0.08  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = False):
@@ -303,7 +342,7 @@ def c_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     d = C_START_FRAC * 2 * half
     return Primitive(
         "touch",
-        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (0.0, 0.0)) for a, s in (("left", 1), ("right", -1))},
+        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (C_PRESS_OPEN,) * 2) for a, s in (("left", 1), ("right", -1))},
         0.8,
         transit=2.0,
     )
@@ -315,36 +354,50 @@ def c_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
         u, _ = w.squeeze_axis()
         start = poses[a]
         end_xy = w.pos + s * C_END_HALF_GAP * u
-        motions[a] = ArmMotion(start, (_p(end_xy[0], end_xy[1], start[0][2]), start[1]), (0.0, 0.0))
+        motions[a] = ArmMotion(start, (_p(end_xy[0], end_xy[1], start[0][2]), start[1]), (C_PRESS_OPEN,) * 2)
+    ctx["c_ridge"] = w.pos.copy()  # the ridge rises midway between the pressing hands
     return Primitive("squeeze", motions, 1.6)
 
 
 def c_release_right(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     return Primitive(
         "release",
-        {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (0.0, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], 0.0)},
+        {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (C_PRESS_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)},
         0.5,
+    )
+
+
+def c_release_both(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """Both hands let go of the squeezed sheet (the ridge stays, held by table friction); the left
+    hand gets out of the way (up and outward) so the right hand can reach across the ridge."""
+    u, _ = w.squeeze_axis()
+    return Primitive(
+        "release",
+        {
+            "right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (C_PRESS_OPEN, C_PINCH_OPEN)),
+            "left": ArmMotion(poses["left"], _rel(poses["left"], C_LEFT_AWAY * u + _p(0, 0, 0.15)), (C_PRESS_OPEN,) * 2),
+        },
+        0.6,
     )
 
 
 def c_straddle(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     """Right gripper, open, fingers either side of the fold (between the pressing hands)."""
-    left_p = poses["left"][0]
     u, _ = w.squeeze_axis()
-    centre = left_p - u * (C_END_HALF_GAP + 0.0)
+    centre = ctx["c_ridge"]
     R = tcp_rotation(DOWN, u)
     z = w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
     start = (_p(centre[0], centre[1], z + 0.06), R)
     end = (_p(centre[0], centre[1], z), R)
     return Primitive(
-        "press", {"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], 0.0)}, 0.8, transit=1.5
+        "press", {"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)}, 0.8, transit=1.5
     )
 
 
 def c_pinch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     return Primitive(
         "grasp",
-        {"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": ArmMotion.still(poses["left"], 0.0)},
+        {"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)},
         0.8,
     )
 
@@ -352,7 +405,7 @@ def c_pinch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 def c_release_left(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     return Primitive(
         "release",
-        {"left": ArmMotion(poses["left"], _rel(poses["left"], (0, 0.0, 0.1)), (0.0, 0.0)), "right": ArmMotion.still(poses["right"], 0.0)},
+        {"left": ArmMotion(poses["left"], _rel(poses["left"], (0, 0.0, 0.1)), (C_PRESS_OPEN,) * 2), "right": ArmMotion.still(poses["right"], 0.0)},
         0.6,
     )
 
@@ -362,8 +415,8 @@ def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 
 STRATEGIES = {
-    "A": (a_touch, a_press, a_slide, a_release, a_approach, a_grasp, a_lift, hold),
+    "A": (a_touch, a_press, a_slide, a_release) * 2 + (a_preapproach, a_approach, a_grasp, a_lift, hold),
     "B": (b_touch, b_squeeze, b_lift, hold),
-    "C": (c_touch, c_squeeze, c_release_right, c_straddle, c_pinch, c_release_left, c_lift, hold),
+    "C": (c_touch, c_squeeze, c_release_both, c_straddle, c_pinch, c_lift, hold),
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""

@@ -58,7 +58,10 @@ class FlatLabSim:
             self.flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, "cloth")
             adr, num = m.flex_vertadr[self.flex_id], m.flex_vertnum[self.flex_id]
             self._vert_slice = slice(adr, adr + num)
-            self._vert_bodies = m.flex_vertbodyid[adr : adr + num]
+            d0 = mujoco.MjData(m)
+            mujoco.mj_kinematics(m, d0)
+            rest = d0.flexvert_xpos[self._vert_slice][:, :2]
+            self._rest_xy = rest - rest.mean(axis=0)  # sheet-frame layout, for the yaw fit
             self.obj_geoms = np.zeros(0, dtype=int)
             self._free_qadr = None
         else:
@@ -173,10 +176,9 @@ class FlatLabSim:
             return d.xpos[self.obj_body].copy(), d.xquat[self.obj_body].copy()
         pts = self.object_points()
         c = pts.mean(axis=0)
-        xy = pts[:, :2] - c[:2]
-        w, v = np.linalg.eigh(xy.T @ xy)
-        ax = v[:, -1]
-        yaw = np.arctan2(ax[1], ax[0])
+        # yaw: best 2-D rotation of the rest layout onto the current vertices (Procrustes)
+        H = self._rest_xy.T @ (pts[:, :2] - c[:2])
+        yaw = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
         return c, np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])
 
     def object_extent(self) -> np.ndarray:

@@ -1,0 +1,42 @@
+"""The ``flatlab`` command: ``demo``, ``bench``, ``assets``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from flatlab_lerobot.paths import OUTPUTS_DIR
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="flatlab", description="FlatLab-LeRobot: flat-object grasping benchmark in MuJoCo")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    d = sub.add_parser("demo", help="scripted expert on one reference object per strategy: key frames, videos, summary")
+    d.add_argument("--out", type=Path, default=OUTPUTS_DIR / "demo", help="output folder (default: outputs/demo)")
+    d.add_argument("--strategies", default="A,B,C", help="comma-separated subset of A,B,C")
+    d.add_argument("--seed", type=int, default=0, help="placement seed (planar ±5 cm, yaw ±30°)")
+    b = sub.add_parser("bench", help="speed benchmark: env vs raw mj_step+render, real-time factors")
+    b.add_argument("rest", nargs=argparse.REMAINDER)
+    a = sub.add_parser("assets", help="list / validate the catalog, render contact sheets")
+    a.add_argument("rest", nargs=argparse.REMAINDER)
+    args = ap.parse_args(argv)
+    if args.cmd == "demo":
+        from flatlab_lerobot.demo import run_demo
+
+        records = run_demo(args.out, strategies=tuple(s.strip() for s in args.strategies.split(",")), seed=args.seed)
+        return 0 if records else 1
+    if args.cmd == "bench":
+        from flatlab_lerobot.bench.speed import main as bench_main
+
+        bench_main(args.rest)
+        return 0
+    if args.cmd == "assets":
+        from flatlab_lerobot import assets_cli
+
+        return assets_cli.main(args.rest)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
