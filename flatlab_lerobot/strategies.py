@@ -163,6 +163,7 @@ A_INSET = 0.032  # the pinch point lies this far inside the object's front bound
 A_MIN_BEYOND_EDGE = 0.02  # ... and at least this far beyond the table edge, so the fingers clear it (m)
 A_OPEN = 0.06  # gripper opening while approaching the overhang (m)
 A_PRESS_DEPTH = 0.0005  # press target below the object top (m): the arm is stiff, ~10 N
+A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 0/10)
 
 
 def _a_arm(world: World, ctx: dict) -> str:
@@ -198,7 +199,7 @@ def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     ctx["skipping"] = False
     p, R = _a_press_pose(w)
     above = (p + _p(0, 0, 0.06), R)
-    return Primitive("touch", {arm: ArmMotion(above, (p + _p(0, 0, A_PRESS_DEPTH + 0.002), R), (0.0, 0.0))}, 0.6, transit=1.5)
+    return Primitive("touch", {arm: ArmMotion(above, (p + _p(0, 0, A_PRESS_DEPTH + 0.002), R), (A_PRESS_OPEN,) * 2)}, 0.6, transit=1.5)
 
 
 def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -206,7 +207,7 @@ def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     if ctx["skipping"]:
         return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
     start = poses[arm]
-    return Primitive("press", {arm: ArmMotion(start, _rel(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (0.0, 0.0))}, 0.4)
+    return Primitive("press", {arm: ArmMotion(start, _rel(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (A_PRESS_OPEN,) * 2)}, 0.4)
 
 
 def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -215,7 +216,7 @@ def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
         return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
     dist = _a_overhang_missing(w)
     start = poses[arm]
-    return Primitive("slide", {arm: ArmMotion(start, _rel(start, (dist, 0, 0)), (0.0, 0.0))}, max(0.5, dist / 0.08))
+    return Primitive("slide", {arm: ArmMotion(start, _rel(start, (dist, 0, 0)), (A_PRESS_OPEN,) * 2)}, max(0.5, dist / 0.08))
 
 
 def a_release(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -224,7 +225,7 @@ def a_release(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     if ctx["skipping"]:
         return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
     start = poses[arm]
-    return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.12)), (0.0, A_OPEN))}, 0.8)
+    return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.12)), (A_PRESS_OPEN, A_OPEN))}, 0.8)
 
 
 def _polygon_hits(corners: np.ndarray, axis: int, value: float) -> list[float]:
