@@ -1,4 +1,4 @@
-"""Registers FlatLab with LeRobot: the ``flatlab`` EnvConfig and our policy types.
+"""Registers FlatLab with LeRobot: the ``flatlab`` EnvConfig, the gym id and our policy types.
 
 Imported by the discovery shim ``lerobot_env_flatlab`` (which lerobot's CLIs import on their own).
 """
@@ -6,6 +6,9 @@ Imported by the discovery shim ``lerobot_env_flatlab`` (which lerobot's CLIs imp
 
 def register() -> None:
     """Import the modules whose import registers the env and policy configs (idempotent)."""
+    import flatlab_lerobot.env
+    import flatlab_lerobot.lerobot_env
+    import flatlab_lerobot.policies.scripted.configuration_flatlab_scripted  # noqa: F401  "flatlab_scripted"
 
 
 register()

@@ -328,7 +328,7 @@ C_START_FRAC = 0.42  # press points at +-this fraction of the sheet's extent fro
 C_END_HALF_GAP = 0.05  # the pressing hands stop this far from the centre (m)
 C_PINCH_OPEN = 0.06  # gripper opening when straddling the fold (m)
 C_PRESS_OPEN = GRIPPER_MAX_WIDTH  # pressing with open fingers: no cloth gets caught between them
-C_LEFT_AWAY = 0.08  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
+C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = False):

@@ -1,0 +1,235 @@
+"""FlatLab as a Gymnasium env: one cell, one flat object, two Pandas, cameras and point clouds.
+
+Observation (a ``Dict``):
+
+* ``agent_pos`` (16,) float32: per arm 7 joint angles (rad) + gripper width (m), left then right.
+* ``pixels``: ``Dict`` camera name -> (H, W, 3) uint8 (only when ``obs_pixels``).
+* ``pointcloud`` (n_points, 3) float32: world-frame scene cloud from the depth of
+  ``pointcloud_cameras``, cropped to the workspace box above the table, sampled to a fixed size.
+* ``object_pointcloud`` (n_object_points, 3) float32: the pixels the segmentation assigns to the
+  object (rigid geoms / the cloth flex), sampled to a fixed size (zeros when the object is not seen).
+* ``environment_state`` (14,) float32: privileged state, names in ``strategies.ENV_STATE_NAMES``.
+
+Action: ``action_mode="joint"`` (default): (16,) joint targets + gripper width per arm.
+``action_mode="ee"``: (14,) per arm [x, y, z, rotvec(3), gripper width] of the TCP in the world
+frame, turned into joint targets by the sim's IK.
+
+Reward is sparse (1.0 on the step the success rule is met).  The episode terminates on success
+(object lifted >= 5 cm off the table, held >= 2 s with < 1 cm slip) or when the physics diverges
+(``info["failure_reason"]``); it is truncated after ``episode_length`` steps.  ``info["is_success"]``
+is set on every reset and step.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from flatlab_lerobot.catalog import REFERENCE_OBJECTS, load_objects
+from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
+from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
+from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
+from flatlab_lerobot.sim.scene import CellConfig
+
+GYM_ID = "lerobot_env_flatlab/FlatLab-v0"
+TASK_DESCRIPTIONS = {
+    "A": "Slide the flat object over the table edge, then pinch the overhang and lift it.",
+    "B": "Squeeze the box between both grippers and lift it off the table.",
+    "C": "Push the cloth into a fold, pinch the fold and lift the cloth.",
+}
+
+
+class FlatLabEnv(gym.Env):
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        object_id: str | None = None,
+        strategy: str | None = None,
+        cameras: tuple[str, ...] | list[str] | str = ("front", "top"),
+        image_size: int = 96,
+        n_points: int = 1024,
+        n_object_points: int = 256,
+        pointcloud_cameras: tuple[str, ...] | list[str] | str | None = None,
+        action_mode: str = "joint",
+        xy_range: float = 0.05,
+        yaw_range_deg: float = 30.0,
+        episode_length: int = 200,
+        control_dt: float = 0.1,
+        render_mode: str | None = "rgb_array",
+        render_size: int = 256,
+        render_camera: str = "front",
+        obs_pixels: bool = True,
+        obs_pointcloud: bool = True,
+        cell: CellConfig | None = None,
+        task: str | None = None,
+    ):
+        super().__init__()
+        if object_id is None:
+            if strategy in (None, "", "auto"):
+                strategy = "A"
+            object_id = REFERENCE_OBJECTS[strategy]
+        if action_mode not in ("joint", "ee"):
+            raise ValueError(f"action_mode must be 'joint' or 'ee', got {action_mode!r}")
+        self.cameras = tuple(cameras.split(",")) if isinstance(cameras, str) else tuple(cameras)
+        if pointcloud_cameras is None:
+            pointcloud_cameras = self.cameras
+        elif isinstance(pointcloud_cameras, str):
+            pointcloud_cameras = tuple(pointcloud_cameras.split(","))
+        self.pointcloud_cameras = tuple(pointcloud_cameras)
+        self.image_size = int(image_size)
+        self.n_points, self.n_object_points = int(n_points), int(n_object_points)
+        self.action_mode = action_mode
+        self.xy_range, self.yaw_range = float(xy_range), np.deg2rad(float(yaw_range_deg))
+        self.episode_length = int(episode_length)
+        self.control_dt = float(control_dt)
+        self.render_mode = render_mode
+        self.render_size, self.render_camera = int(render_size), render_camera
+        self.obs_pixels, self.obs_pointcloud = bool(obs_pixels), bool(obs_pointcloud)
+        self.metadata = {**self.metadata, "render_fps": round(1 / self.control_dt)}
+        self._cell = cell
+        self._objects = load_objects()
+        self.sim: FlatLabSim | None = None
+        self.rig: CameraRig | None = None
+        self._task_override = task
+        self._build(object_id)
+        self._make_spaces()
+        self._steps = 0
+        self._last_obs = None
+        self._done_reason: str | None = None
+
+    # ------------------------------------------------------------------ construction
+    def _build(self, object_id: str) -> None:
+        if object_id not in self._objects:
+            raise ValueError(f"unknown object {object_id!r}; known: {sorted(self._objects)}")
+        if self.rig is not None:
+            self.rig.close()
+        self.object_id = object_id
+        self.obj = self._objects[object_id]
+        self.sim = FlatLabSim(self.obj, self._cell, control_dt=self.control_dt)
+        self.cell = self.sim.cell
+        needed = set(self.cameras) | set(self.pointcloud_cameras) | {self.render_camera}
+        self.rig = CameraRig(self.sim.model, self.image_size, self.image_size, sorted(needed))
+        self.task = self._task_override or f"grasp_{self.obj.strategy}"
+        self.task_description = TASK_DESCRIPTIONS.get(self.obj.strategy, "Lift the flat object off the table.")
+        tx, ty = self.cell.table_size
+        h = self.cell.table_height
+        # Workspace: the table top (plus a margin beyond the usable edge) up to 0.6 m above it.
+        self.workspace = (np.array([-tx / 2, -ty / 2, h - 0.005]), np.array([tx / 2 + 0.15, ty / 2, h + 0.6]))
+
+    def _make_spaces(self) -> None:
+        s = self.image_size
+        obs = {
+            "agent_pos": spaces.Box(-np.inf, np.inf, (16,), np.float32),
+            "environment_state": spaces.Box(-np.inf, np.inf, (14,), np.float32),
+        }
+        if self.obs_pixels:
+            obs["pixels"] = spaces.Dict({c: spaces.Box(0, 255, (s, s, 3), np.uint8) for c in self.cameras})
+        if self.obs_pointcloud:
+            obs["pointcloud"] = spaces.Box(-np.inf, np.inf, (self.n_points, 3), np.float32)
+            obs["object_pointcloud"] = spaces.Box(-np.inf, np.inf, (self.n_object_points, 3), np.float32)
+        self.observation_space = spaces.Dict(obs)
+        m, ids = self.sim.model, self.sim._ctrl_ids()
+        lo, hi = m.actuator_ctrlrange[ids, 0].astype(np.float32), m.actuator_ctrlrange[ids, 1].astype(np.float32)
+        if self.action_mode == "joint":
+            self.action_space = spaces.Box(lo, hi, (16,), np.float32)
+        else:
+            arm_lo = np.r_[-1.5, -1.5, 0.0, -np.pi, -np.pi, -np.pi, 0.0].astype(np.float32)
+            arm_hi = np.r_[1.5, 1.5, 2.0, np.pi, np.pi, np.pi, GRIPPER_MAX_WIDTH].astype(np.float32)
+            self.action_space = spaces.Box(np.r_[arm_lo, arm_lo], np.r_[arm_hi, arm_hi], (14,), np.float32)
+
+    # ------------------------------------------------------------------ observation
+    def _observe(self) -> dict:
+        sim, rig = self.sim, self.rig
+        rig.invalidate()
+        obs = {
+            "agent_pos": sim.joint_positions().astype(np.float32),
+            "environment_state": sim.environment_state().astype(np.float32),
+        }
+        if self.obs_pixels:
+            obs["pixels"] = {c: rig.rgb(sim.data, c) for c in self.cameras}
+        if self.obs_pointcloud:
+            pts = crop(rig.scene_points(sim.data, self.pointcloud_cameras), *self.workspace)
+            obs["pointcloud"] = sample(pts, self.n_points, self.np_random)
+            opts = rig.object_points(sim.data, sim.obj_geoms, sim.flex_id, self.pointcloud_cameras)
+            obs["object_pointcloud"] = sample(opts, self.n_object_points, self.np_random)
+        return obs
+
+    def _info(self) -> dict:
+        st = self.sim.grasp_status()
+        info = {
+            "is_success": bool(self.sim.is_success()),
+            "object_id": self.object_id,
+            "clearance": float(st.clearance),
+            "held_for": float(st.held_for),
+            "holding_arms": ",".join(st.holding_arms),
+        }
+        return info
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        if options.get("object_id") and options["object_id"] != self.object_id:
+            self._build(options["object_id"])
+            self._make_spaces()
+        rng = self.np_random
+        x, y = rng.uniform(-self.xy_range, self.xy_range, size=2)
+        yaw = rng.uniform(-self.yaw_range, self.yaw_range)
+        if "placement" in options:  # explicit (x, y, yaw)
+            x, y, yaw = (float(v) for v in options["placement"])
+        self.placement = (float(x), float(y), float(yaw))
+        self.sim.reset(*self.placement)
+        self._steps = 0
+        self._done_reason = None
+        obs = self._observe()
+        self._last_obs = obs
+        info = self._info()
+        info["placement"] = np.array(self.placement)
+        return obs, info
+
+    def ee_to_joint(self, action: np.ndarray) -> np.ndarray:
+        """(14,) per-arm [pos, rotvec, gripper] -> (16,) joint targets via IK."""
+        from scipy.spatial.transform import Rotation
+
+        a = np.asarray(action, dtype=float).reshape(2, 7)
+        targets = {arm: (a[i, :3], Rotation.from_rotvec(a[i, 3:6]).as_matrix()) for i, arm in enumerate(ARMS)}
+        q = self.sim.solve_ik(targets)
+        return np.r_[q[:7], a[0, 6], q[7:], a[1, 6]]
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float)
+        try:
+            target = self.ee_to_joint(action) if self.action_mode == "ee" else action
+            self.sim.step(target)
+        except SimulationDiverged as e:
+            self._steps += 1
+            self._done_reason = f"simulation diverged: {e}"
+            info = {"is_success": False, "object_id": self.object_id, "failure_reason": self._done_reason}
+            return self._last_obs, 0.0, True, False, info
+        self._steps += 1
+        obs = self._observe()
+        self._last_obs = obs
+        info = self._info()
+        success = info["is_success"]
+        truncated = (not success) and self._steps >= self.episode_length
+        return obs, float(success), bool(success), bool(truncated), info
+
+    def render(self):
+        return self.rig.render_rgb(self.sim.data, self.render_camera, self.render_size, self.render_size)
+
+    def close(self):
+        if self.rig is not None:
+            self.rig.close()
+            self.rig = None
+
+
+def register_gym() -> None:
+    if GYM_ID not in gym.registry:
+        gym.register(id=GYM_ID, entry_point="flatlab_lerobot.env:FlatLabEnv")
+
+
+register_gym()

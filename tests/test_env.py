@@ -1,0 +1,107 @@
+"""FlatLabEnv: spaces, shapes, is_success, gym registration, failure handling, ee actions."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import flatlab_lerobot  # noqa: F401
+from flatlab_lerobot.env import GYM_ID, FlatLabEnv
+from flatlab_lerobot.sim.core import SimulationDiverged
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = FlatLabEnv(
+        object_id="ref_box", image_size=48, n_points=256, n_object_points=64, episode_length=5, render_size=64
+    )
+    yield e
+    e.close()
+
+
+def test_reset_and_step_shapes(env):
+    obs, info = env.reset(seed=0)
+    assert "is_success" in info and info["is_success"] is False
+    assert env.observation_space.contains(obs)
+    assert obs["agent_pos"].shape == (16,) and obs["environment_state"].shape == (14,)
+    assert set(obs["pixels"]) == {"front", "top"} and obs["pixels"]["front"].shape == (48, 48, 3)
+    assert obs["pointcloud"].shape == (256, 3) and obs["object_pointcloud"].shape == (64, 3)
+    # the scene cloud is cropped to the workspace, the object cloud lies around the object
+    lo, hi = env.workspace
+    assert np.all(obs["pointcloud"] >= lo - 1e-6) and np.all(obs["pointcloud"] <= hi + 1e-6)
+    centre = obs["environment_state"][:3]
+    assert np.max(np.linalg.norm(obs["object_pointcloud"][:, :2] - centre[:2], axis=1)) < 0.2
+    a = obs["agent_pos"].copy()
+    for t in range(5):
+        obs, r, term, trunc, info = env.step(a)
+        assert "is_success" in info and isinstance(r, float)
+        assert env.observation_space.contains(obs)
+    assert trunc and not term  # episode_length = 5
+    frame = env.render()
+    assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
+
+
+def test_seeded_reset_is_deterministic(env):
+    o1, i1 = env.reset(seed=7)
+    o2, i2 = env.reset(seed=7)
+    assert np.array_equal(i1["placement"], i2["placement"])
+    for k in ("agent_pos", "environment_state", "pointcloud", "object_pointcloud"):
+        assert np.array_equal(o1[k], o2[k]), k
+    _, i3 = env.reset(seed=8)
+    assert not np.array_equal(i1["placement"], i3["placement"])
+    x, y, yaw = i3["placement"]
+    assert abs(x) <= 0.05 and abs(y) <= 0.05 and abs(yaw) <= np.deg2rad(30)
+
+
+def test_divergence_ends_episode_as_failure(env, monkeypatch):
+    obs, _ = env.reset(seed=0)
+
+    def boom(_):
+        raise SimulationDiverged("test")
+
+    monkeypatch.setattr(env.sim, "step", boom)
+    obs2, _, term, trunc, info = env.step(obs["agent_pos"])
+    assert term and not trunc and not info["is_success"] and "diverged" in info["failure_reason"]
+    assert env.observation_space.contains(obs2)
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_gym_make_and_check_env():
+    from gymnasium.utils.env_checker import check_env
+
+    e = gym.make(
+        GYM_ID,
+        object_id="ref_book",
+        image_size=32,
+        n_points=64,
+        n_object_points=16,
+        render_size=32,
+        max_episode_steps=3,
+    )
+    check_env(e.unwrapped, skip_render_check=False)
+    obs, info = e.reset(seed=1)
+    done = False
+    while not done:
+        obs, _, term, trunc, info = e.step(obs["agent_pos"])
+        done = term or trunc
+    assert trunc and "is_success" in info
+    e.close()
+
+
+def test_ee_mode_and_object_switch():
+    e = FlatLabEnv(object_id="ref_book", action_mode="ee", obs_pixels=False, obs_pointcloud=False)
+    obs, _ = e.reset(seed=0)
+    assert e.action_space.shape == (14,) and "pixels" not in obs
+    from scipy.spatial.transform import Rotation
+
+    act = []
+    for arm in ("left", "right"):
+        p, R = e.sim.tcp_pose(arm)
+        act.append(np.r_[p + [0, 0, 0.03], Rotation.from_matrix(R).as_rotvec(), 0.08])
+    for _ in range(5):
+        obs, *_ = e.step(np.concatenate(act))
+    for arm, a in zip(("left", "right"), act):
+        assert np.linalg.norm(e.sim.tcp_pose(arm)[0] - a[:3]) < 0.01
+    obs, info = e.reset(seed=0, options={"object_id": "ref_box"})
+    assert e.object_id == "ref_box" and info["object_id"] == "ref_box"
+    assert obs["environment_state"][9] == pytest.approx(0.08)
+    e.close()
