@@ -1,17 +1,20 @@
 #!/usr/bin/env bash
 # Create .venv on Python 3.12 and install FlatLab-LeRobot (editable) with its test extras.
-# Python 3.12 is looked up as: $PYTHON, python3.12 on PATH, then pyenv (`pyenv prefix 3.12*`).
+# Python 3.12 is looked up as: $PYTHON, python3.12 on PATH, then pyenv's installed 3.12.x.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-py="${PYTHON:-}"
-if [ -z "$py" ] && command -v python3.12 >/dev/null 2>&1; then py=$(command -v python3.12); fi
-if [ -z "$py" ] && command -v pyenv >/dev/null 2>&1; then
-  v=$(pyenv versions --bare | grep -E '^3\.12(\.|$)' | tail -n 1 || true)
-  [ -n "$v" ] && py="$(pyenv root)/versions/$v/bin/python"
+is312() { "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1; }
+py=""
+candidates=("${PYTHON:-}" "$(command -v python3.12 || true)")
+if command -v pyenv >/dev/null 2>&1; then
+  for v in $(pyenv versions --bare 2>/dev/null | grep -E '^3\.12(\.|$)' || true); do
+    candidates+=("$(pyenv root)/versions/$v/bin/python")
+  done
 fi
-if [ -z "$py" ]; then
-  for c in "$HOME"/.pyenv/versions/3.12*/bin/python; do [ -x "$c" ] && py="$c"; done
-fi
+for c in "$HOME"/.pyenv/versions/3.12*/bin/python; do candidates+=("$c"); done
+for c in "${candidates[@]}"; do
+  if [ -n "$c" ] && is312 "$c"; then py="$c"; break; fi
+done
 [ -n "$py" ] || { echo "setup: Python 3.12 not found (set PYTHON=/path/to/python3.12)" >&2; exit 1; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
