@@ -360,14 +360,6 @@ def c_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     return Primitive("squeeze", motions, 1.6)
 
 
-def c_release_right(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive(
-        "release",
-        {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (C_PRESS_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)},
-        0.5,
-    )
-
-
 def c_release_both(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     """Both hands let go of the squeezed sheet (the ridge stays, held by table friction); the left
     hand gets out of the way (up and outward) so the right hand can reach across the ridge."""
@@ -400,14 +392,6 @@ def c_pinch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
         "grasp",
         {"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)},
         0.8,
-    )
-
-
-def c_release_left(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive(
-        "release",
-        {"left": ArmMotion(poses["left"], _rel(poses["left"], (0, 0.0, 0.1)), (C_PRESS_OPEN,) * 2), "right": ArmMotion.still(poses["right"], 0.0)},
-        0.6,
     )
 
 
