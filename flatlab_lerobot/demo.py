@@ -34,7 +34,7 @@ def run_expert_episode(
     object_id: str,
     strategy: str,
     seed: int,
-    max_time: float = 25.0,
+    max_time: float = 30.0,
     on_step=None,
 ) -> dict:
     """Run the scripted expert once; ``on_step(sim, stage, primitive_index)`` is called after every

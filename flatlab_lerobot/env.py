@@ -57,7 +57,7 @@ class FlatLabEnv(gym.Env):
         action_mode: str = "joint",
         xy_range: float = 0.05,
         yaw_range_deg: float = 30.0,
-        episode_length: int = 200,
+        episode_length: int = 300,
         control_dt: float = 0.1,
         render_mode: str | None = "rgb_array",
         render_size: int = 256,

@@ -26,7 +26,7 @@ class FlatLabEnvConfig(EnvConfig):
     task: str | None = "grasp"
     object_id: str = "ref_book"
     fps: int = 10
-    episode_length: int = 200
+    episode_length: int = 300
     image_size: int = 96
     render_size: int = 256
     cameras: list[str] = field(default_factory=lambda: ["front", "top"])

@@ -162,7 +162,9 @@ A_APPROACH_YAW = 35.0  # the hand approaches the overhang from the front, turned
 A_INSET = 0.032  # the pinch point lies this far inside the object's front boundary (m) ...
 A_MIN_BEYOND_EDGE = 0.02  # ... and at least this far beyond the table edge, so the fingers clear it (m)
 A_OPEN = 0.06  # gripper opening while approaching the overhang (m)
-A_PRESS_DEPTH = 0.0005  # press target below the object top (m): the arm is stiff, ~10 N
+A_PRESS_DEPTH = 0.001  # press target below the object top (m): the arm is stiff
+A_SLIDE_GAIN = 1.3  # the object lags the finger: slide this many times the missing distance (<= +5 cm)
+A_PASSES = 3  # push passes at most; a pass is skipped once the overhang is within 1 cm of the target
 A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 0/10)
 
 
@@ -214,7 +216,8 @@ def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     if ctx["skipping"]:
         return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
-    dist = _a_overhang_missing(w)
+    missing = _a_overhang_missing(w)
+    dist = min(missing * A_SLIDE_GAIN, missing + 0.05)
     start = poses[arm]
     return Primitive("slide", {arm: ArmMotion(start, _rel(start, (dist, 0, 0)), (A_PRESS_OPEN,) * 2)}, max(0.5, dist / 0.08))
 
@@ -400,7 +403,7 @@ def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 
 STRATEGIES = {
-    "A": (a_touch, a_press, a_slide, a_release) * 2 + (a_preapproach, a_approach, a_grasp, a_lift, hold),
+    "A": (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_approach, a_grasp, a_lift, hold),
     "B": (b_touch, b_squeeze, b_lift, hold),
     "C": (c_touch, c_squeeze, c_release_both, c_straddle, c_pinch, c_lift, hold),
 }

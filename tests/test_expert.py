@@ -22,8 +22,9 @@ def test_strategy_b_lifts_the_box():
 
 @pytest.mark.slow
 def test_strategy_a_lifts_the_book():
-    # Measured 4/10 at seeds 0-9 (see README); the bar below guards against regressions until it reaches 9/10.
-    assert sum(_rate("ref_book", "A")) >= 4
+    # Measured 8/10 at seeds 0-9 (8/10 at 10-19, 4/10 at 20-29; see README): below the 9/10 bar.
+    # The outcome is chaotic (stick-slip under a stiff finger), so the guard leaves some room.
+    assert sum(_rate("ref_book", "A")) >= 6
 
 
 @pytest.mark.slow
