@@ -1,4 +1,4 @@
-"""The ``flatlab`` command: ``demo``, ``bench``, ``assets``."""
+"""The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``assets``."""
 
 from __future__ import annotations
 
@@ -9,7 +9,20 @@ from pathlib import Path
 from flatlab_lerobot.paths import OUTPUTS_DIR
 
 
+PASSTHROUGH = {
+    "bench": "flatlab_lerobot.bench.speed",
+    "eval": "flatlab_lerobot.bench.protocol",
+    "assets": "flatlab_lerobot.assets_cli",
+}
+"""Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
+
+
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PASSTHROUGH:
+        import importlib
+
+        return importlib.import_module(PASSTHROUGH[argv[0]]).main(argv[1:]) or 0
     ap = argparse.ArgumentParser(prog="flatlab", description="FlatLab-LeRobot: flat-object grasping benchmark in MuJoCo")
     sub = ap.add_subparsers(dest="cmd", required=True)
     d = sub.add_parser("demo", help="scripted expert on one reference object per strategy: key frames, videos, summary")
@@ -18,6 +31,8 @@ def main(argv=None) -> int:
     d.add_argument("--seed", type=int, default=0, help="placement seed (planar ±5 cm, yaw ±30°)")
     b = sub.add_parser("bench", help="speed benchmark: env vs raw mj_step+render, real-time factors")
     b.add_argument("rest", nargs=argparse.REMAINDER)
+    e = sub.add_parser("eval", help="benchmark protocol: a policy over splits x objects x trials, paper-format tables")
+    e.add_argument("rest", nargs=argparse.REMAINDER)
     a = sub.add_parser("assets", help="list / validate the catalog, render contact sheets")
     a.add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
@@ -26,15 +41,6 @@ def main(argv=None) -> int:
 
         records = run_demo(args.out, strategies=tuple(s.strip() for s in args.strategies.split(",")), seed=args.seed)
         return 0 if records else 1
-    if args.cmd == "bench":
-        from flatlab_lerobot.bench.speed import main as bench_main
-
-        bench_main(args.rest)
-        return 0
-    if args.cmd == "assets":
-        from flatlab_lerobot import assets_cli
-
-        return assets_cli.main(args.rest)
     return 2
 
 

@@ -113,8 +113,18 @@ class FlatLabEnv(gym.Env):
         self.cell = self.sim.cell
         needed = set(self.cameras) | set(self.pointcloud_cameras) | {self.render_camera}
         self.rig = CameraRig(self.sim.model, self.image_size, self.image_size, sorted(needed))
-        self.task = self._task_override or f"grasp_{self.obj.strategy}"
-        self.task_description = TASK_DESCRIPTIONS.get(self.obj.strategy, "Lift the flat object off the table.")
+        from flatlab_lerobot.tasks import TASKS
+
+        task_id = self._task_override or "grasp"
+        if task_id not in TASKS:
+            raise ValueError(f"unknown task {task_id!r}; known: {sorted(TASKS)}")
+        self.task_spec = TASKS[task_id]
+        self.task = task_id
+        self.task_description = (
+            TASK_DESCRIPTIONS.get(self.obj.strategy, "Lift the flat object off the table.")
+            if task_id == "grasp"
+            else self.task_spec.description
+        )
         tx, ty = self.cell.table_size
         h = self.cell.table_height
         # Workspace: the table top (plus a margin beyond the usable edge) up to 0.6 m above it.
@@ -158,10 +168,25 @@ class FlatLabEnv(gym.Env):
             obs["object_pointcloud"] = sample(opts, self.n_object_points, self.np_random)
         return obs
 
+    def _start_task(self):
+        from flatlab_lerobot.tasks import TaskContext, _yaw
+
+        pos, quat = self.sim.object_pose()
+        ctx = TaskContext(start_pos=pos, start_yaw=_yaw(quat))
+        if self.task_spec.make_target is not None:
+            self.task_spec.make_target(self.sim, ctx)
+        return ctx
+
+    def _task_success(self) -> bool:
+        """The selected task's predicate (``grasp``: the benchmark's 2-s hold rule).  Once met, the
+        episode counts as a success (it terminates on that step)."""
+        self._task_done = self._task_done or bool(self.task_spec.success(self.sim, self._task_ctx))
+        return self._task_done
+
     def _info(self) -> dict:
         st = self.sim.grasp_status()
         info = {
-            "is_success": bool(self.sim.is_success()),
+            "is_success": self._task_success(),
             "object_id": self.object_id,
             "clearance": float(st.clearance),
             "held_for": float(st.held_for),
@@ -183,6 +208,8 @@ class FlatLabEnv(gym.Env):
             x, y, yaw = (float(v) for v in options["placement"])
         self.placement = (float(x), float(y), float(yaw))
         self.sim.reset(*self.placement)
+        self._task_ctx = self._start_task()
+        self._task_done = False
         self._steps = 0
         self._done_reason = None
         obs = self._observe()

@@ -21,7 +21,9 @@ from flatlab_lerobot.env import GYM_ID
 @dataclass
 class FlatLabEnvConfig(EnvConfig):
     """FlatLab cell with one object.  ``object_id`` picks the object (catalog id, e.g. ref_book,
-    ref_box, ref_towel); ``task`` is a label reported to policies (``grasp``)."""
+    ref_box, ref_towel); ``task`` picks the success predicate: one of ``flatlab_lerobot.tasks.TASKS``
+    (``grasp`` = the benchmark's full 2-s hold rule; ``touch``, ``slide``, ``slide_to_edge``, ``press``,
+    ``grasp_single``, ``pick_up``, ``touch_dual``, ``lift_coop``, ``squeeze_edge``, ``grasp_edge``)."""
 
     task: str | None = "grasp"
     object_id: str = "ref_book"

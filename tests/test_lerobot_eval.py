@@ -81,3 +81,21 @@ def test_lerobot_eval_cli_matches_env_success(tmp_path):
     assert cli == ours, (cli, ours)
     assert info["overall"]["pc_success"] == pytest.approx(100 * np.mean(ours))
     assert all(ours), "strategy B should lift the reference box"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task_id", ["touch_dual", "slide_to_edge"])
+def test_lerobot_eval_runs_a_task(tmp_path, task_id):
+    """``lerobot-eval --env.task=<id>``: the scripted expert completes the sub-task, judged by its predicate."""
+    object_id = "ref_box" if task_id == "touch_dual" else "ref_book"
+    out = tmp_path / "eval"
+    cmd = [
+        str(BIN / "lerobot-eval"), "--policy.type=flatlab_scripted", "--policy.device=cpu", "--env.type=flatlab",
+        f"--env.task={task_id}", f"--env.object_id={object_id}", "--env.image_size=32", "--env.render_size=64",
+        "--env.n_points=128", "--env.n_object_points=32", "--env.episode_length=150", "--eval.n_episodes=1",
+        "--eval.batch_size=1", f"--output_dir={out}",
+    ]  # fmt: skip
+    res = subprocess.run(cmd, check=False, capture_output=True, text=True, env={**os.environ, "MUJOCO_GL": "egl"}, timeout=600)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    info = json.loads((out / "eval_info.json").read_text())
+    assert info["overall"]["pc_success"] == 100.0
