@@ -1,4 +1,4 @@
-"""The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``assets``."""
+"""The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ PASSTHROUGH = {
     "bench": "flatlab_lerobot.bench.speed",
     "eval": "flatlab_lerobot.bench.protocol",
     "assets": "flatlab_lerobot.assets_cli",
+    "collect": "flatlab_lerobot.collect",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -33,6 +34,8 @@ def main(argv=None) -> int:
     b.add_argument("rest", nargs=argparse.REMAINDER)
     e = sub.add_parser("eval", help="benchmark protocol: a policy over splits x objects x trials, paper-format tables")
     e.add_argument("rest", nargs=argparse.REMAINDER)
+    c = sub.add_parser("collect", help="expert demonstrations from a recipe (datasets/*.yaml) into a LeRobotDataset v3")
+    c.add_argument("rest", nargs=argparse.REMAINDER)
     a = sub.add_parser("assets", help="list / validate the catalog, render contact sheets")
     a.add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)

@@ -1,0 +1,5 @@
+import sys
+
+from flatlab_lerobot.collect import main
+
+sys.exit(main())

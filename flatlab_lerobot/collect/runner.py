@@ -1,0 +1,199 @@
+"""One expert episode -> a list of LeRobot frames plus an episode record.
+
+Frame ``t`` pairs the observation *before* step ``t`` with the expert's action at step ``t``
+(the LeRobot convention).  The episode's outcome (success / failure reason) is only known at
+the end, so frames are buffered and labelled afterwards: ``success`` is constant over the
+episode, and a failed demo keeps its frames with ``failure_reason`` set.
+
+Determinism: a fresh env and expert are built for every episode, the placement comes from
+``numpy.random.default_rng(episode_seed)`` and the env (point-cloud sampling) is reset with the
+same seed, so an episode's non-video data depends only on (recipe, episode index) -- not on
+which episodes ran before it in the same process (required for crash/resume).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from flatlab_lerobot.catalog import get_object
+from flatlab_lerobot.collect.recipe import Recipe
+from flatlab_lerobot.sim.core import SimulationDiverged
+from flatlab_lerobot.sim.robot import ARMS
+
+STAGE_HOLD = "hold"
+
+
+@dataclass
+class EpisodeResult:
+    episode_index: int  # index in the recipe's sequence (seed = recipe.seed + episode_index)
+    seed: int
+    object_id: str
+    strategy: str
+    task: str
+    placement: tuple[float, float, float]
+    success: bool
+    failure_reason: str
+    frames: list[dict] = field(default_factory=list)
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    stages: list[str] = field(default_factory=list)
+
+    def record(self) -> dict:
+        return {
+            "episode_index": self.episode_index,
+            "seed": self.seed,
+            "object_id": self.object_id,
+            "strategy": self.strategy,
+            "task": self.task,
+            "placement": {"x": self.placement[0], "y": self.placement[1], "yaw_rad": self.placement[2]},
+            "success": self.success,
+            "failure_reason": self.failure_reason,
+            "num_frames": len(self.frames),
+            "sim_time_s": round(self.sim_time_s, 3),
+            "wall_time_s": round(self.wall_time_s, 3),
+            "stages": self.stages,
+        }
+
+
+def sample_placement(recipe: Recipe, seed: int) -> tuple[float, float, float]:
+    rng = np.random.default_rng(seed)
+    r = recipe.randomization
+    x, y = rng.uniform(-r.xy_range, r.xy_range, size=2)
+    yaw = np.radians(rng.uniform(-r.yaw_range_deg, r.yaw_range_deg))
+    return float(x), float(y), float(yaw)
+
+
+def strategy_for(recipe: Recipe, object_id: str) -> str:
+    return get_object(object_id).strategy if recipe.strategy == "auto" else recipe.strategy
+
+
+def make_env(recipe: Recipe, object_id: str):
+    from flatlab_lerobot.env import FlatLabEnv
+
+    need_pc = recipe.has("pointcloud") or recipe.has("object_pointcloud")
+    cams = recipe.cameras or (recipe.pointcloud_cameras or ())
+    return FlatLabEnv(
+        object_id=object_id,
+        cameras=cams,
+        image_size=recipe.image_size,
+        n_points=recipe.n_points,
+        n_object_points=recipe.n_object_points,
+        pointcloud_cameras=recipe.pointcloud_cameras,
+        xy_range=recipe.randomization.xy_range,
+        yaw_range_deg=recipe.randomization.yaw_range_deg,
+        episode_length=recipe.max_steps,
+        control_dt=recipe.control_dt,
+        render_size=max(16, recipe.image_size),
+        obs_pixels=recipe.has("rgb"),
+        obs_pointcloud=need_pc,
+    )
+
+
+def ee_pose(sim) -> np.ndarray:
+    """(14,) per arm (left, right): TCP position (3) + quaternion wxyz (4), world frame."""
+    out = []
+    for arm in ARMS:
+        pos, R = sim.tcp_pose(arm)
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, R.reshape(-1))
+        if q[0] < 0:  # canonical hemisphere, so the stream has no sign flips
+            q = -q
+        out.append(np.r_[pos, q])
+    return np.concatenate(out).astype(np.float32)
+
+
+def _frame(recipe: Recipe, env, obs: dict, action: np.ndarray, stage: str, stage_index: int) -> dict:
+    f: dict = {
+        "observation.state": np.asarray(obs["agent_pos"], np.float32),
+        "action": np.asarray(action, np.float32),
+        "stage_index": np.array([stage_index], np.int64),
+        "stage": stage,
+    }
+    if recipe.has("rgb"):
+        for cam in recipe.cameras:
+            f[f"observation.images.{cam}"] = obs["pixels"][cam]
+    if recipe.has("depth"):
+        for cam in recipe.cameras:
+            f[f"observation.depth.{cam}"] = env.rig.depth(env.sim.data, cam)[..., None].astype(np.float32)
+    if recipe.has("pointcloud"):
+        f["observation.pointcloud"] = np.asarray(obs["pointcloud"], np.float32)
+    if recipe.has("object_pointcloud"):
+        f["observation.object_pointcloud"] = np.asarray(obs["object_pointcloud"], np.float32)
+    if recipe.has("ee_pose"):
+        f["observation.ee_pose"] = ee_pose(env.sim)
+    if recipe.has("environment_state"):
+        f["observation.environment_state"] = np.asarray(obs["environment_state"], np.float32)
+    return f
+
+
+def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
+    """Run the scripted expert for episode ``episode_index`` of ``recipe`` and return its frames.
+
+    Never raises for a failed demo: physics divergence, expert errors and timeouts all end the
+    episode with ``success=False`` and a ``failure_reason``.  (An error *before the first frame*
+    -- e.g. divergence while settling -- gives an episode with no frames, which the collector
+    records as skipped.)  ``env``: an env to reuse (tests); by default a fresh one."""
+    from flatlab_lerobot.env import TASK_DESCRIPTIONS
+    from flatlab_lerobot.strategies import Expert
+
+    seed = recipe.episode_seed(episode_index)
+    object_id = recipe.object_for(episode_index)
+    strategy = strategy_for(recipe, object_id)
+    task = recipe.task or TASK_DESCRIPTIONS.get(strategy, "Lift the flat object off the table.")
+    placement = sample_placement(recipe, seed)
+    res = EpisodeResult(episode_index, seed, object_id, strategy, task, placement, False, "")
+    t0 = time.perf_counter()
+    own_env = env is None
+    frames: list[dict] = []
+    reason = ""
+    info: dict = {}
+    try:
+        if own_env:
+            env = make_env(recipe, object_id)
+        obs, info = env.reset(seed=seed, options={"placement": placement})
+        expert = Expert(env.cell, recipe.control_dt)
+        holder = {"obs": obs}
+        gen = expert.episode(strategy, lambda: (holder["obs"]["agent_pos"], holder["obs"]["environment_state"]))
+        for _ in range(recipe.max_steps):
+            stage, prim_index, action = next(gen)
+            frames.append(_frame(recipe, env, holder["obs"], action, stage, prim_index))
+            if not res.stages or res.stages[-1] != stage:
+                res.stages.append(stage)
+            obs, _, terminated, truncated, info = env.step(action)
+            holder["obs"] = obs
+            if info.get("failure_reason"):
+                reason = str(info["failure_reason"])
+                break
+            if terminated or truncated:
+                break
+    except SimulationDiverged as exc:
+        reason = f"simulation diverged: {exc}"
+    except Exception as exc:  # noqa: BLE001 -- expert/IK/rendering errors: keep the demo, label it
+        reason = f"error: {type(exc).__name__}: {exc}"
+    success = bool(info.get("is_success", False)) and not reason
+    if not success and not reason:
+        try:
+            st = env.sim.grasp_status()
+            why = "object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped"
+        except Exception:  # noqa: BLE001
+            why = "not lifted"
+        reason = f"timeout after {len(frames)} steps: {why}"
+    res.success, res.failure_reason = success, reason
+    if env is not None and env.sim is not None:
+        res.sim_time_s = float(env.sim.data.time)
+    if own_env and env is not None:
+        env.close()
+    for f in frames:
+        f["strategy"] = strategy
+        f["object_id"] = object_id
+        f["success"] = np.array([success], bool)
+        f["failure_reason"] = reason
+        f["episode_seed"] = np.array([seed], np.int64)
+        f["task"] = task
+    res.frames = frames
+    res.wall_time_s = time.perf_counter() - t0
+    return res
