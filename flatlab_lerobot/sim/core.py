@@ -59,7 +59,7 @@ class FlatLabSim:
             adr, num = m.flex_vertadr[self.flex_id], m.flex_vertnum[self.flex_id]
             self._vert_slice = slice(adr, adr + num)
             d0 = mujoco.MjData(m)
-            mujoco.mj_kinematics(m, d0)
+            mujoco.mj_forward(m, d0)  # flex vertex positions need the full position stage
             rest = d0.flexvert_xpos[self._vert_slice][:, :2]
             self._rest_xy = rest - rest.mean(axis=0)  # sheet-frame layout, for the yaw fit
             self.obj_geoms = np.zeros(0, dtype=int)
@@ -100,7 +100,12 @@ class FlatLabSim:
             # Cloth vertices are slide-jointed to the object body: move the body itself.
             m.body_pos[self.obj_body][:2] = [x, y]
             m.body_quat[self.obj_body] = [c, 0, 0, s]
+        # Sleeping islands (cloth scenes) would keep the old kinematics of bodies that start asleep:
+        # compute the new placement with sleep off, then let things fall asleep again while settling.
+        sleep = m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         mujoco.mj_forward(m, d)
+        m.opt.enableflags |= sleep
         self._hold_ref = None
         self.time_held = 0.0
         self.warning_counts = self._warning_counts()
