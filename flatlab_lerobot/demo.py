@@ -22,12 +22,9 @@ from flatlab_lerobot.strategies import Expert
 
 def sample_placement(seed: int, planar: float = 0.05, yaw_deg: float = 30.0) -> tuple[float, float, float]:
     """The benchmark's default reset distribution: planar offset ±``planar`` m, yaw ±``yaw_deg``."""
-    rng = np.random.default_rng(seed)
-    return (
-        float(rng.uniform(-planar, planar)),
-        float(rng.uniform(-planar, planar)),
-        float(np.radians(rng.uniform(-yaw_deg, yaw_deg))),
-    )
+    from flatlab_lerobot.tasks import ResetDistribution
+
+    return ResetDistribution(planar, yaw_deg).sample(seed)
 
 
 def run_expert_episode(

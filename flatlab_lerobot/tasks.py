@@ -307,11 +307,16 @@ class Trajectory:
 def start_episode(task: TaskSpec, object_id: str, seed: int) -> tuple[FlatLabSim, TaskContext]:
     sim = FlatLabSim(get_object(object_id))
     sim.reset(*task.reset.sample(seed))
+    return sim, task_context(task, sim)
+
+
+def task_context(task: TaskSpec, sim: FlatLabSim) -> TaskContext:
+    """The per-episode context of ``task`` for the object as it lies now (right after a reset)."""
     pos, quat = sim.object_pose()
     ctx = TaskContext(start_pos=pos, start_yaw=_yaw(quat))
     if task.make_target is not None:
         task.make_target(sim, ctx)
-    return sim, ctx
+    return ctx
 
 
 def run_task_episode(

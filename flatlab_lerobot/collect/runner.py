@@ -60,11 +60,10 @@ class EpisodeResult:
 
 
 def sample_placement(recipe: Recipe, seed: int) -> tuple[float, float, float]:
-    rng = np.random.default_rng(seed)
+    from flatlab_lerobot.tasks import ResetDistribution
+
     r = recipe.randomization
-    x, y = rng.uniform(-r.xy_range, r.xy_range, size=2)
-    yaw = np.radians(rng.uniform(-r.yaw_range_deg, r.yaw_range_deg))
-    return float(x), float(y), float(yaw)
+    return ResetDistribution(r.xy_range, r.yaw_range_deg).sample(seed)
 
 
 def strategy_for(recipe: Recipe, object_id: str) -> str:
