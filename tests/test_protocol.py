@@ -41,3 +41,30 @@ def test_baselines_choose_fixed_strategies(tmp_path):
     assert {r["strategy"] for r in recs} == {"B"}
     assert {r["object_id"]: r["S"] for r in recs} == {"ref_box": True, "ref_book": False}
     assert (out / "results.png").stat().st_size > 0
+
+
+def test_kill_9_then_rerun_finishes_without_repeats(tmp_path):
+    """A real ``kill -9`` of ``flatlab eval`` half-way, then a re-run: every trial exactly once."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "eval"
+    args = ["--policy", "oracle", "--objects", "ref_box,ref_book", "--trials", "3", "--quiet", "--no-plot",
+            "--workers", "1", "--out", str(out)]  # fmt: skip
+    cmd = [sys.executable, "-m", "flatlab_lerobot.cli", "eval", *args]
+    proc = subprocess.Popen(cmd, start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"})
+    jsonl = out / "results.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (jsonl.exists() and len(jsonl.read_text().splitlines()) >= 2):
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done_before = len(_keys(jsonl))
+    assert 2 <= done_before < 6, done_before
+    assert subprocess.run(cmd, env={**os.environ, "MUJOCO_GL": "egl"}, timeout=300).returncode == 0
+    keys = _keys(jsonl)
+    assert sorted(keys) == sorted({(o, t) for o in ("ref_box", "ref_book") for t in range(3)})
+    assert json.loads((out / "results.json").read_text())["overall"]["trials"] == 6
