@@ -116,19 +116,34 @@ class Expert:
 
     def ik(self, targets, q14, far: bool = False) -> np.ndarray:
         """Joint targets reaching ``targets``.  ``far``: the goal may be far from ``q14`` (a transit),
-        so also try canned seed postures and keep the best solution."""
+        so canned seed postures are tried too: the first solution that reaches the goal is kept
+        unless it puts an elbow or forearm into the table, then the reaching solution whose arm
+        links stay highest above the table wins."""
         seeds = [q14]
         if far:
             seeds += [np.r_[s if "left" in targets else q14[:7], s if "right" in targets else q14[7:]] for s in IK_SEEDS]
-        best, best_err = None, np.inf
+        best, best_key = None, (np.inf, 0.0)
         for seed in seeds:
             self._set(seed)
             q, err = self._ik.solve(self.data.qpos, targets, iterations=20 if not far else 150)
-            if err < best_err:
-                best, best_err = q, err
-            if err < 5e-3:
+            reached = err < 5e-3
+            clear = self._link_clearance(q, targets) if far and reached else 0.0
+            key = (0.0, -clear) if reached else (err, 0.0)
+            if key < best_key:
+                best, best_key = q, key
+            if reached and clear >= 0.0:
                 break
         return np.concatenate([best[self.arms[a].qpos] for a in ARMS])
+
+    def _link_clearance(self, qpos: np.ndarray, targets) -> float:
+        """Lowest height of the moving arms' elbow/forearm/wrist bodies above the table top, less a
+        capsule radius (m); negative: that link would hit the table."""
+        self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        z = min(
+            self.data.xpos[self.model.body(f"{a}/{link}").id][2] for a in targets for link in ("link4", "link5", "link6")
+        )
+        return float(z - self.cell.table_height - 0.07)
 
     # the episode --------------------------------------------------------------------------
     def episode(self, strategy: str, observe):
@@ -159,9 +174,10 @@ class Expert:
 # ---------------------------------------------------------------------------- strategy A
 A_OVERHANG = 0.085  # how far the object is pushed past the edge (m)
 A_APPROACH_YAW = 35.0  # the hand approaches the overhang from the front, turned this much to its side (deg)
-A_INSET = 0.032  # the pinch point lies this far inside the object's front boundary (m) ...
+A_INSET = 0.04  # the pinch point lies this far inside the object's front boundary (m) ...
 A_MIN_BEYOND_EDGE = 0.02  # ... and at least this far beyond the table edge, so the fingers clear it (m)
 A_OPEN = 0.06  # gripper opening while approaching the overhang (m)
+A_APPROACH_LEN = 0.12  # the horizontal approach starts this far out, so the descent clears the object (m)
 A_PRESS_DEPTH = 0.001  # press target below the object top (m): the arm is stiff
 A_SLIDE_GAIN = 1.3  # the object lags the finger: slide this many times the missing distance (<= +5 cm)
 A_PASSES = 3  # push passes at most; a pass is skipped once the overhang is within 1 cm of the target
@@ -263,14 +279,14 @@ def _a_grasp_geometry(w: World, ctx: dict):
 def a_preapproach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm, end, a = _a_grasp_geometry(w, ctx)
     R = tcp_rotation(a, [0.0, 0.0, 1.0])
-    p = end - 0.16 * a + _p(0, 0, 0.15)
+    p = end - A_APPROACH_LEN * a + _p(0, 0, 0.12)  # straight above the approach start
     return Primitive("move", {arm: ArmMotion((p, R), (p, R), (A_OPEN, A_OPEN))}, 0.2, transit=2.0)
 
 
 def a_approach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm, end, a = _a_grasp_geometry(w, ctx)
     R = tcp_rotation(a, [0.0, 0.0, 1.0])
-    return Primitive("touch", {arm: ArmMotion((end - 0.08 * a, R), (end, R), (A_OPEN, A_OPEN))}, 1.0, transit=1.0)
+    return Primitive("touch", {arm: ArmMotion((end - A_APPROACH_LEN * a, R), (end, R), (A_OPEN, A_OPEN))}, 1.2, transit=1.0)
 
 
 def a_grasp(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
