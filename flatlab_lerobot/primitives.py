@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from flatlab_lerobot.sim.robot import ARMS
 
 PRIMITIVE_NAMES = ("move", "touch", "press", "slide", "squeeze", "grasp", "lift", "hold", "release")
 
@@ -47,16 +46,6 @@ class Primitive:
     def __post_init__(self):
         if self.name not in PRIMITIVE_NAMES:
             raise ValueError(f"unknown primitive {self.name!r}; known: {PRIMITIVE_NAMES}")
-
-    def pose_vector(self) -> np.ndarray:
-        """Start and end 6-D poses of each arm as (arms, 2, 7): position + quaternion (wxyz)."""
-        out = np.zeros((len(ARMS), 2, 7))
-        for i, arm in enumerate(ARMS):
-            if arm in self.motions:
-                for j, (p, R) in enumerate((self.motions[arm].start, self.motions[arm].end)):
-                    q = Rotation.from_matrix(R).as_quat()  # xyzw
-                    out[i, j] = np.r_[p, q[3], q[:3]]
-        return out
 
 
 def _interp_pose(motion: ArmMotion, s: float):

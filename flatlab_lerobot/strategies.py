@@ -202,19 +202,17 @@ def _a_overhang_missing(w: World) -> float:
     return max(0.0, w.edge_x + A_OVERHANG - w.corners_xy()[:, 0].max())
 
 
-def _a_skip(w: World, poses, grip, ctx) -> Primitive | None:
-    """The second push pass is skipped (a 0.1 s hold) when the first one pushed far enough."""
-    if ctx.get("pass", 0) >= 1 and _a_overhang_missing(w) < 0.01:
-        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
-    return None
+def _hold_all(poses, grip, duration: float) -> Primitive:
+    """Both arms hold their pose and gripper for ``duration`` seconds."""
+    return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, duration)
 
 
 def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
-    if (skip := _a_skip(w, poses, grip, ctx)) is not None:
-        ctx["skipping"] = True
-        return skip
-    ctx["skipping"] = False
+    # A later push pass is skipped (0.1 s holds) once an earlier one pushed far enough.
+    ctx["skipping"] = ctx.get("pass", 0) >= 1 and _a_overhang_missing(w) < 0.01
+    if ctx["skipping"]:
+        return _hold_all(poses, grip, 0.1)
     p, R = _a_press_pose(w)
     above = (p + _p(0, 0, 0.06), R)
     return Primitive("touch", {arm: ArmMotion(above, (p + _p(0, 0, A_PRESS_DEPTH + 0.002), R), (A_PRESS_OPEN,) * 2)}, 0.6, transit=1.5)
@@ -223,7 +221,7 @@ def a_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     if ctx["skipping"]:
-        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
+        return _hold_all(poses, grip, 0.1)
     start = poses[arm]
     return Primitive("press", {arm: ArmMotion(start, _rel(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (A_PRESS_OPEN,) * 2)}, 0.4)
 
@@ -231,7 +229,7 @@ def a_press(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 def a_slide(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     if ctx["skipping"]:
-        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
+        return _hold_all(poses, grip, 0.1)
     missing = _a_overhang_missing(w)
     dist = min(missing * A_SLIDE_GAIN, missing + 0.05)
     start = poses[arm]
@@ -242,7 +240,7 @@ def a_release(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     ctx["pass"] = ctx.get("pass", 0) + 1
     if ctx["skipping"]:
-        return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 0.1)
+        return _hold_all(poses, grip, 0.1)
     start = poses[arm]
     return Primitive("release", {arm: ArmMotion(start, _rel(start, (0, 0, 0.12)), (A_PRESS_OPEN, A_OPEN))}, 0.8)
 
@@ -301,7 +299,7 @@ def a_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 
 def hold(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, 2.6)
+    return _hold_all(poses, grip, 2.6)
 
 
 # ---------------------------------------------------------------------------- strategy B

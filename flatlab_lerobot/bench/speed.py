@@ -71,15 +71,13 @@ def real_time_factor(object_id: str, strategy: str, sim_seconds: float) -> dict:
     sim = FlatLabSim(get_object(object_id))
     sim.reset(0.0, 0.0, 0.0)
     gen = Expert(sim.cell, sim.control_dt).episode(strategy, lambda: (sim.joint_positions(), sim.environment_state()))
-    actions = [next(gen)[2] for _ in range(1)]
     t_phys = 0.0
     start = sim.data.time
     while sim.data.time - start < sim_seconds:
-        a = actions[-1]
+        action = next(gen)[2]  # expert time is not counted: physics only
         t0 = time.perf_counter()
-        sim.step(a)
+        sim.step(action)
         t_phys += time.perf_counter() - t0
-        actions.append(next(gen)[2])  # expert time is not counted: physics only
     return {"object": object_id, "timestep": sim.model.opt.timestep, "sim_s": sim.data.time - start,
             "wall_s": t_phys, "rtf": (sim.data.time - start) / t_phys}  # fmt: skip
 

@@ -56,8 +56,6 @@ class ArmIndex:
     finger_qpos: np.ndarray  # 2 finger qpos addresses
     ctrl: np.ndarray  # 8 actuator ids (7 joints + gripper)
     tcp_site: int
-    hand_body: int
-    pad_geoms: tuple[int, int]
     geoms: np.ndarray  # every geom of the arm
 
     @classmethod
@@ -77,8 +75,6 @@ class ArmIndex:
             finger_qpos=np.array([model.jnt_qposadr[j] for j in fingers]),
             ctrl=np.array(ctrl),
             tcp_site=model.site(f"{arm}/tcp").id,
-            hand_body=model.body(f"{arm}/hand").id,
-            pad_geoms=(model.geom(f"{arm}/left_pad").id, model.geom(f"{arm}/right_pad").id),
             geoms=geoms,
         )
 

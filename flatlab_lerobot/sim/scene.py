@@ -15,7 +15,7 @@ import numpy as np
 
 from flatlab_lerobot.assets import object_xml
 from flatlab_lerobot.catalog import ObjectSpec
-from flatlab_lerobot.sim.robot import ARMS, BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, attach_arm  # noqa: F401
+from flatlab_lerobot.sim.robot import ARMS, BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, attach_arm
 
 
 
