@@ -1,4 +1,5 @@
-"""The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``."""
+"""The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
+``strategy-set``, ``primitive-set``, ``bench-collect``."""
 
 from __future__ import annotations
 
@@ -14,6 +15,11 @@ PASSTHROUGH = {
     "eval": "flatlab_lerobot.bench.protocol",
     "assets": "flatlab_lerobot.assets_cli",
     "collect": "flatlab_lerobot.collect",
+    "push": "flatlab_lerobot.collect.hub",
+    "view": "flatlab_lerobot.viz",
+    "strategy-set": "flatlab_lerobot.learning.strategy_set",
+    "primitive-set": "flatlab_lerobot.learning.primitive_set",
+    "bench-collect": "flatlab_lerobot.bench.collect_speed",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -38,6 +44,14 @@ def main(argv=None) -> int:
     c.add_argument("rest", nargs=argparse.REMAINDER)
     a = sub.add_parser("assets", help="list / validate the catalog, render contact sheets")
     a.add_argument("rest", nargs=argparse.REMAINDER)
+    for name, text in (
+        ("push", "upload a collected dataset (with a generated dataset card) to the Hugging Face hub"),
+        ("view", "open / save a rerun recording of a dataset episode with clouds, EE poses, stages, success"),
+        ("strategy-set", "the strategy generator's learning set: normalized object clouds + strategy labels"),
+        ("primitive-set", "the action module's learning set: scene cloud at each primitive start + start/end poses"),
+        ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
+    ):
+        sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
     if args.cmd == "demo":
         from flatlab_lerobot.demo import run_demo
