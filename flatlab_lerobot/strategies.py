@@ -87,6 +87,7 @@ IK_SEEDS = [
 ]
 IK_SEEDS += [s * np.array([-1, 1, -1, 1, -1, 1, -1]) for s in IK_SEEDS]  # mirror images
 """Seed postures for IK of far-away goals (differential IK is local)."""
+LINK_CLEARANCE = 0.07  # an arm link's frame must stay this far above the table top (capsule radius + margin, m)
 
 
 class Expert:
@@ -116,22 +117,32 @@ class Expert:
 
     def ik(self, targets, q14, far: bool = False) -> np.ndarray:
         """Joint targets reaching ``targets``.  ``far``: the goal may be far from ``q14`` (a transit),
-        so canned seed postures are tried too: the first solution that reaches the goal is kept
-        unless it puts an elbow or forearm into the table, then the reaching solution whose arm
-        links stay highest above the table wins."""
+        so canned seed postures are tried too.  A reaching solution is *clear* when the moving
+        arms' elbow/forearm/wrist stay above the table as far as the goal allows (a goal near the
+        table top necessarily brings the wrist down to it); among clear solutions the one nearest
+        to ``q14`` in joint space wins (the current posture first: a joint-space transit between
+        far-apart branches sweeps the arm through the workspace and knocks objects over), else the
+        reaching solution whose links stay highest."""
         seeds = [q14]
         if far:
             seeds += [np.r_[s if "left" in targets else q14[:7], s if "right" in targets else q14[7:]] for s in IK_SEEDS]
-        best, best_key = None, (np.inf, 0.0)
+            lowest_goal = min(float(t[0][2]) for t in targets.values()) - self.cell.table_height
+            need = min(0.0, lowest_goal - LINK_CLEARANCE) - 0.01
+        best, best_key = None, (3, np.inf)
         for seed in seeds:
             self._set(seed)
             q, err = self._ik.solve(self.data.qpos, targets, iterations=20 if not far else 150)
-            reached = err < 5e-3
-            clear = self._link_clearance(q, targets) if far and reached else 0.0
-            key = (0.0, -clear) if reached else (err, 0.0)
+            if err >= 5e-3:
+                key = (2, err)
+            elif not far:
+                key = (0, 0.0)
+            else:
+                clear = self._link_clearance(q, targets)
+                moved = np.concatenate([q[self.arms[a].qpos] for a in ARMS]) - q14
+                key = (0, float(np.abs(moved).max())) if clear >= need else (1, -clear)
             if key < best_key:
                 best, best_key = q, key
-            if reached and clear >= 0.0:
+            if key[0] == 0 and seed is q14:
                 break
         return np.concatenate([best[self.arms[a].qpos] for a in ARMS])
 
@@ -143,7 +154,7 @@ class Expert:
         z = min(
             self.data.xpos[self.model.body(f"{a}/{link}").id][2] for a in targets for link in ("link4", "link5", "link6")
         )
-        return float(z - self.cell.table_height - 0.07)
+        return float(z - self.cell.table_height - LINK_CLEARANCE)
 
     # the episode --------------------------------------------------------------------------
     def episode(self, strategy: str, observe):
@@ -185,8 +196,14 @@ A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 
 
 
 def _a_arm(world: World, ctx: dict) -> str:
-    """The arm that pushes and grasps: the one on the object's side, chosen once per episode."""
+    """The arm that pushes: the one on the object's side, chosen once per episode."""
     return ctx.setdefault("arm", "right" if world.pos[1] <= 0 else "left")
+
+
+def _a_grasp_arm(world: World, ctx: dict) -> str:
+    """The arm that grasps: the one on the side where the pushes left the object (a push can
+    drift it sideways by 10-20 cm), chosen once, when the grasp begins."""
+    return ctx.setdefault("grasp_arm", "right" if world.pos[1] <= 0 else "left")
 
 
 def _a_press_pose(world: World):
@@ -262,7 +279,7 @@ def _a_grasp_geometry(w: World, ctx: dict):
     direction.  The hand comes horizontally from the front, turned A_APPROACH_YAW towards the
     arm's side (reachable, and the wrist stays clear of the table), enters the overhang at the
     object's centre line and stops A_INSET inside its front boundary."""
-    arm = _a_arm(w, ctx)
+    arm = _a_grasp_arm(w, ctx)
     dy = 1.0 if arm == "right" else -1.0
     yaw = np.radians(A_APPROACH_YAW)
     approach = _p(-np.cos(yaw), dy * np.sin(yaw), 0.0)
@@ -278,7 +295,12 @@ def a_preapproach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm, end, a = _a_grasp_geometry(w, ctx)
     R = tcp_rotation(a, [0.0, 0.0, 1.0])
     p = end - A_APPROACH_LEN * a + _p(0, 0, 0.12)  # straight above the approach start
-    return Primitive("move", {arm: ArmMotion((p, R), (p, R), (A_OPEN, A_OPEN))}, 0.2, transit=2.0)
+    motions = {arm: ArmMotion((p, R), (p, R), (A_OPEN, A_OPEN))}
+    pusher = _a_arm(w, ctx)
+    if pusher != arm:  # the pushing hand backs off towards its own base, out of the grasping arm's way
+        back = poses[pusher][0] + _p(-0.05, 0.15 if pusher == "left" else -0.15, 0.05)
+        motions[pusher] = ArmMotion((back, poses[pusher][1]), (back, poses[pusher][1]), (grip[pusher],) * 2)
+    return Primitive("move", motions, 0.2, transit=2.0)
 
 
 def a_approach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -288,12 +310,12 @@ def a_approach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 
 def a_grasp(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    arm = _a_arm(w, ctx)
+    arm = _a_grasp_arm(w, ctx)
     return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))}, 0.6)
 
 
 def a_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    arm = _a_arm(w, ctx)
+    arm = _a_grasp_arm(w, ctx)
     start = poses[arm]
     return Primitive("lift", {arm: ArmMotion(start, _rel(start, (0.06, 0, 0.16)), (0.0, 0.0))}, 1.6)
 
