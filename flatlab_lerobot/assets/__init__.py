@@ -358,9 +358,35 @@ def _cutting_board(o: ObjectSpec) -> list[Geom]:
     gr = _shade(f.rgba, 0.8)
     m, x1 = 0.02, f.hx - hl - 0.02
     t = f.hz + 0.0003
-    g += [_box(-f.hx + m, x1, -f.hy + m, -f.hy + m + 0.003, t - _DECO, t, gr), _box(-f.hx + m, x1, f.hy - m - 0.003, f.hy - m, t - _DECO, t, gr),
-          _box(-f.hx + m, -f.hx + m + 0.003, -f.hy + m, f.hy - m, t - _DECO, t, gr), _box(x1 - 0.003, x1, -f.hy + m, f.hy - m, t - _DECO, t, gr)]
+    if min(x1 + f.hx - m, 2 * (f.hy - m)) > 0.01:  # room for it (a small, rescaled board has none)
+        g += [_box(-f.hx + m, x1, -f.hy + m, -f.hy + m + 0.003, t - _DECO, t, gr), _box(-f.hx + m, x1, f.hy - m - 0.003, f.hy - m, t - _DECO, t, gr),
+              _box(-f.hx + m, -f.hx + m + 0.003, -f.hy + m, f.hy - m, t - _DECO, t, gr), _box(x1 - 0.003, x1, -f.hy + m, f.hy - m, t - _DECO, t, gr)]
     return g
+
+
+def _rigid_sheet(o: ObjectSpec) -> list[Geom]:
+    """The rigid counterpart of a cloth (``transforms.rigid_counterpart``): a plate of the sheet's
+    thickness and outline, colliding with its boxes.  sheet: one box; shorts: a waistband and two
+    legs around the gap (``leg_gap`` wide, up to ``rise`` below the waist); skirt: 16 strips whose
+    widths follow the trapezoid (hem at -y, waist ``waist_ratio`` as wide at +y)."""
+    f = _Frame(o)
+    c = {"collide": True}
+    if o.shape == "shorts":
+        g, yc = o.param("leg_gap") / 2, f.hy - o.param("rise") * 2 * f.hy
+        return [_box(-f.hx, f.hx, yc, f.hy, -f.hz, f.hz, f.rgba, **c),
+                _box(-f.hx, -g, -f.hy, yc, -f.hz, f.hz, f.rgba, **c), _box(g, f.hx, -f.hy, yc, -f.hz, f.hz, f.rgba, **c)]
+    if o.shape == "skirt":
+        n, wr = 16, o.param("waist_ratio")
+        ys = np.linspace(-f.hy, f.hy, n + 1)
+        ws = f.hx * (1 - (1 - wr) * ((ys[:-1] + ys[1:]) / 2 + f.hy) / (2 * f.hy))  # at each strip's middle
+        return [_box(-ws[k], ws[k], ys[k], ys[k + 1], -f.hz, f.hz, f.rgba, **c) for k in range(n)]
+    return [_box(-f.hx, f.hx, -f.hy, f.hy, -f.hz, f.hz, f.rgba, **c)]
+
+
+RIGID_COUNTERPART_BUILDERS: dict[str, Callable[[ObjectSpec], list[Geom]]] = {
+    "sheet": _rigid_sheet, "shorts": _rigid_sheet, "skirt": _rigid_sheet,
+}
+"""Deformable family -> builder of its rigid counterpart (``material: rigid`` with a cloth family)."""
 
 
 RIGID_BUILDERS: dict[str, Callable[[ObjectSpec], list[Geom]]] = {
@@ -374,9 +400,10 @@ RIGID_BUILDERS: dict[str, Callable[[ObjectSpec], list[Geom]]] = {
 
 def rigid_geoms(obj: ObjectSpec) -> list[Geom]:
     """The primitive geoms of a rigid object (collision first)."""
-    if obj.shape not in RIGID_BUILDERS:
+    builder = RIGID_BUILDERS.get(obj.shape) or RIGID_COUNTERPART_BUILDERS.get(obj.shape)
+    if builder is None:
         raise ValueError(f"object '{obj.id}': no rigid builder for family {obj.shape!r}")
-    return RIGID_BUILDERS[obj.shape](obj)
+    return builder(obj)
 
 
 def _geom_xml(g: Geom, name: str, mask: str, friction: float) -> str:
