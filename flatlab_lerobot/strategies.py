@@ -55,6 +55,33 @@ class World:
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         return np.array([c, s, 0.0]), np.array([-s, c, 0.0])
 
+    @property
+    def round(self) -> bool:
+        """A rigid object with a square footprint (disks, plates, round clocks -- or a square): its
+        yaw says nothing useful, so footprint queries treat it as a disk of that diameter."""
+        return not self.deformable and abs(self.size[0] - self.size[1]) < 1e-4
+
+    def max_x(self) -> float:
+        """Largest x of the footprint (m)."""
+        if self.round:
+            return float(self.pos[0] + self.size[0] / 2)
+        return float(self.corners_xy()[:, 0].max())
+
+    def length_x(self) -> float:
+        """Extent of the footprint along world x (m)."""
+        if self.round:
+            return float(self.size[0])
+        c = self.corners_xy()[:, 0]
+        return float(c.max() - c.min())
+
+    def front_at(self, y: float) -> float:
+        """x where the footprint's front (+x) boundary crosses the line at ``y``."""
+        if self.round:
+            r = self.size[0] / 2
+            return float(self.pos[0] + np.sqrt(max(r * r - (y - self.pos[1]) ** 2, 0.0)))
+        hits = _polygon_hits(self.corners_xy(), 1, y)
+        return max(hits) if hits else self.max_x()
+
     def corners_xy(self) -> np.ndarray:
         ex, ey = self.axes()
         hx, hy = self.size[0] / 2, self.size[1] / 2
@@ -183,7 +210,8 @@ class Expert:
 
 
 # ---------------------------------------------------------------------------- strategy A
-A_OVERHANG = 0.085  # how far the object is pushed past the edge (m)
+A_OVERHANG = 0.085  # how far the object is pushed past the edge (m) ...
+A_OVERHANG_FRAC = 0.4  # ... but at most this share of its length along x
 A_APPROACH_YAW = 35.0  # the hand approaches the overhang from the front, turned this much to its side (deg)
 A_INSET = 0.04  # the pinch point lies this far inside the object's front boundary (m) ...
 A_MIN_BEYOND_EDGE = 0.02  # ... and at least this far beyond the table edge, so the fingers clear it (m)
@@ -214,9 +242,15 @@ def _a_press_pose(world: World):
     return p, tcp_rotation(DOWN, [0.0, 1.0, 0.0])
 
 
+def _a_overhang_target(w: World) -> float:
+    """How far the object should stick out past the edge (m): A_OVERHANG, but at most
+    A_OVERHANG_FRAC of its length along x, so a small object keeps its centre of mass on the table."""
+    return min(A_OVERHANG, A_OVERHANG_FRAC * w.length_x())
+
+
 def _a_overhang_missing(w: World) -> float:
     """How much further the object must go past the edge (m); 0 when it overhangs enough."""
-    return max(0.0, w.edge_x + A_OVERHANG - w.corners_xy()[:, 0].max())
+    return max(0.0, w.edge_x + _a_overhang_target(w) - w.max_x())
 
 
 def _hold_all(poses, grip, duration: float) -> Primitive:
@@ -284,8 +318,7 @@ def _a_grasp_geometry(w: World, ctx: dict):
     yaw = np.radians(A_APPROACH_YAW)
     approach = _p(-np.cos(yaw), dy * np.sin(yaw), 0.0)
     yc = float(w.pos[1])
-    hits = _polygon_hits(w.corners_xy(), 1, yc)
-    front = max(hits) if hits else float(w.corners_xy()[:, 0].max())
+    front = w.front_at(yc)
     end = _p(front, yc, w.table_height + w.size[2] / 2) + A_INSET * approach
     end[0] = max(end[0], w.edge_x + A_MIN_BEYOND_EDGE)
     return arm, end, approach
