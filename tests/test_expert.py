@@ -1,8 +1,8 @@
 """The scripted expert on the reference objects: right strategies lift, wrong ones fail.
 
-The acceptance protocol (10 seeds per object) is run by ``scripts``-free means: this module's
-``slow`` tests run every seed; the success counts are asserted against the issue's 9/10 bar only
-where the expert meets it (see the README's "Expert" table for the measured numbers)."""
+The acceptance protocol (10 seeds per object, the issue's 9/10 bar) is what the ``slow`` tests
+run for the book and the box; the towel, whose cloth is slow to simulate, gets two seeds here
+(10/10 at seeds 0-9 and 10-19 were measured, see the README's "Expert" table)."""
 
 import pytest
 
@@ -22,9 +22,8 @@ def test_strategy_b_lifts_the_box():
 
 @pytest.mark.slow
 def test_strategy_a_lifts_the_book():
-    # Measured 8/10 at seeds 0-9 and 27/40 over seeds 0-39 (see README): below the 9/10 bar.
-    # The outcome is chaotic (stick-slip under a stiff finger), so the guard leaves some room.
-    assert sum(_rate("ref_book", "A")) >= 6
+    # Measured 10/10 at seeds 0-9 and 27/30 over seeds 0-29 (see README).
+    assert sum(_rate("ref_book", "A")) >= 9
 
 
 @pytest.mark.slow
