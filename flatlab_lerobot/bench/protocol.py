@@ -1,76 +1,317 @@
-"""The evaluation protocol (``flatlab eval``-style): strategy choice S and grasp success G.
+"""The evaluation protocol (``flatlab eval``): strategy choice S and grasp success G.
 
-A *policy* here picks a strategy per object and the scripted expert executes it:
+``--policy`` is either a built-in scripted policy or any LeRobot checkpoint:
 
 * ``oracle``: the object's label strategy (the upper bound of strategy choice),
 * ``slide_only``: always A (slide to the edge, grasp the overhang),
-* ``lift_only``: always B (two-arm squeeze and lift).
+* ``lift_only``: always B (two-arm squeeze and lift),
+* ``flatlab_scripted``: the ``flatlab_scripted`` policy's own rule (C if deformable, else B if
+  >= 4 cm thick, else A), exactly ``lerobot-eval --policy.type=flatlab_scripted``,
+* a folder holding a LeRobot ``pretrained_model`` (``config.json`` + ``model.safetensors`` +
+  processors; a training output folder or its ``checkpoints/<step>`` also work) or a hub repo id.
 
-For every object of the chosen splits and every trial ``t`` (seed = ``--seed`` + t, the
-benchmark's placement distribution), S = the chosen strategy equals the label and G = the
-grasp succeeded (:func:`flatlab_lerobot.demo.run_expert_episode`, the core success rule).
+Every trial runs through LeRobot's own machinery, as ``lerobot-eval`` does: the policy and its
+pre/post processors come from ``make_policy`` / ``make_pre_post_processors`` (``set_seed(--seed)``
+first), the env from ``make_env`` on the ``flatlab`` :class:`~flatlab_lerobot.lerobot_env.FlatLabEnvConfig`
+(``--env.<field>=<value>`` as in lerobot-eval, ``env.object_id`` set per object) and each episode
+from ``lerobot.scripts.lerobot_eval.eval_policy`` with ``start_seed = --seed + trial``.  So trial
+``t`` of object ``o`` is episode ``t`` of ``lerobot-eval --env.type=flatlab --env.object_id=o
+--eval.batch_size=1 --eval.n_episodes=N --seed=SEED`` (same placement, same length, same success);
+the trials of one object run in order in one process after restoring the RNG state that
+``set_seed`` + policy construction left, so a stochastic policy should draw the same noise too (not
+tested; not for an object interrupted half-way and resumed).  The built-in policies run with
+``obs_pixels=false, obs_pointcloud=false`` (the scripted expert reads only the state; rendering
+never changes the physics), which makes them as fast as the bare expert.
 
-Runs in ``--workers`` processes.  Every finished trial is appended to ``results.jsonl`` (one
-JSON line, written by the parent only, flushed and fsynced) and a restart skips the
-``(object, trial)`` keys already there, so an interrupted run resumes without repeating or
-losing trials (a half-written last line is dropped).  When every trial is done it writes
-``results.json``, ``results.md`` (per object S and G as successes/trials, per-split averages)
-and ``results.png``.
+S = the strategy the policy chose (policies exposing ``.strategies``, e.g. ``flatlab_scripted``)
+equals the object's label; a policy that exposes no strategy gets S = n/a (``-``).  G = the env's
+success rule (``info["is_success"]``, the benchmark's 2-s hold for ``--env.task=grasp``).
 
-    python -m flatlab_lerobot.bench.protocol --policy oracle --splits train --trials 5 --out outputs/eval/oracle
+Runs in ``--workers`` processes (each loads the policy once and takes whole objects).  Every
+finished trial is appended to ``results.jsonl`` (one JSON line, written by the parent only,
+flushed and fsynced) and a restart skips the ``(object, trial)`` keys already there, so an
+interrupted run resumes without repeating or losing trials (a half-written last line is dropped).
+When every trial is done it writes ``results.json``, ``results.md`` (per object S and G as
+successes/trials, per-split averages) and ``results.png``.
+
+    flatlab eval --policy oracle --splits train --trials 5
+    flatlab eval --policy outputs/train/act/checkpoints/last/pretrained_model --objects ref_box \\
+        --env.image_size=64 --policy.device=cpu
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import logging
+import math
 import multiprocessing as mp
 import os
+import queue as queue_mod
+import re
 import time
+import traceback
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 from flatlab_lerobot.catalog import BENCHMARK_SPLITS, benchmark_objects, get_object
 
-POLICIES = {
+BUILTIN = {
     "oracle": lambda spec: spec.strategy,
     "slide_only": lambda spec: "A",
     "lift_only": lambda spec: "B",
+    "flatlab_scripted": lambda spec: "auto",
 }
+"""Built-in policy -> the ``flatlab_scripted`` strategy setting it uses for an object."""
+POLICIES = BUILTIN  # backwards-compatible name
 RESULTS_JSONL = "results.jsonl"
+RUN_JSON = "run.json"
+DEFAULT_SEED = 1000  # lerobot-eval's default --seed
+BUILTIN_ENV_ARGS = ["--obs_pixels=false", "--obs_pointcloud=false"]
+ENV_FIXED = {"object_id": "set per object by --objects/--splits", "features": "derived", "features_map": "derived"}
 
 
-def choose_strategy(policy: str, object_id: str) -> str:
-    return POLICIES[policy](get_object(object_id))
+class EvalError(SystemExit):
+    """A bad argument or input: a clear message on stderr, exit status 1."""
+
+    def __init__(self, msg: str):
+        super().__init__(f"flatlab eval: {msg}")
 
 
-def run_trial(job: dict) -> dict:
-    """One (object, trial): choose a strategy, run the expert, judge S and G."""
-    from flatlab_lerobot.demo import run_expert_episode
-
-    spec = get_object(job["object_id"])
-    strategy = choose_strategy(job["policy"], spec.id)
-    t0 = time.perf_counter()
-    rec = run_expert_episode(spec.id, strategy, job["seed"], max_time=job["max_time"])
-    rec.pop("_sim", None)
-    return {
-        "policy": job["policy"],
-        "object_id": spec.id,
-        "trial": job["trial"],
-        "seed": job["seed"],
-        "split": spec.split,
-        "category": spec.category,
-        "label": spec.strategy,
-        "strategy": strategy,
-        "S": strategy == spec.strategy,
-        "G": bool(rec["success"]),
-        "sim_time_s": rec["sim_time_s"],
-        "primitives": rec["primitives"],
-        "failure_reason": rec["failure_reason"],
-        "wall_s": round(time.perf_counter() - t0, 3),
-        "pid": os.getpid(),
-    }
+# ----------------------------------------------------------------------------- policy and env
+def resolve_policy(arg: str) -> tuple[str, bool]:
+    """``(name, builtin)``: a built-in name, an absolute ``pretrained_model`` folder, or a hub id."""
+    if arg in BUILTIN:
+        return arg, True
+    p = Path(arg).expanduser()
+    if p.exists():
+        if not p.is_dir():
+            raise EvalError(f"--policy {arg}: not a folder (want a LeRobot pretrained_model folder with config.json)")
+        for cand in (p, p / "pretrained_model", p / "checkpoints" / "last" / "pretrained_model"):
+            if (cand / "config.json").is_file():
+                if not (cand / "model.safetensors").is_file():
+                    raise EvalError(
+                        f"{cand / 'model.safetensors'}: missing (a LeRobot checkpoint holds config.json + model.safetensors)"
+                    )
+                return str(cand.resolve()), False
+        raise EvalError(f"{p / 'config.json'}: missing (--policy must be a LeRobot pretrained_model folder, a hub repo id "
+                        f"or one of {sorted(BUILTIN)})")  # fmt: skip
+    if re.fullmatch(r"[\w.-]+/[\w.-]+", arg) and not arg.startswith((".", "/")):
+        return arg, False  # a hub repo id: downloaded by lerobot's from_pretrained
+    raise EvalError(f"--policy {arg!r}: no such folder, not a hub repo id (owner/name), not one of {sorted(BUILTIN)}")
 
 
+def make_env_config(env_args: list[str], builtin: bool):
+    """The ``flatlab`` EnvConfig from ``--env.<field>=<value>`` overrides, parsed by draccus as
+    lerobot-eval parses them (the built-ins default to no pixels / no clouds)."""
+    import draccus
+
+    from flatlab_lerobot.lerobot_env import FlatLabEnvConfig
+
+    fields = {f.name for f in dataclasses.fields(FlatLabEnvConfig)}
+    for a in env_args:
+        key = a[2:].split("=", 1)[0]
+        if key in ENV_FIXED:
+            raise EvalError(f"--env.{key}: not settable here ({ENV_FIXED[key]})")
+        if key not in fields:
+            raise EvalError(
+                f"--env.{key}: not a field of the flatlab EnvConfig (fields: {', '.join(sorted(fields - set(ENV_FIXED)))})"
+            )
+    args = (BUILTIN_ENV_ARGS if builtin else []) + env_args
+    try:
+        return draccus.parse(config_class=FlatLabEnvConfig, args=args)
+    except SystemExit as e:
+        raise EvalError(f"bad --env.* value in {env_args}") from e
+
+
+def load_policy_config(name: str, builtin: bool, overrides: list[str]):
+    """The policy config as lerobot-eval builds it (``--policy.path`` + ``--policy.*`` overrides)."""
+    import lerobot.policies  # noqa: F401  registers lerobot's policy types, as lerobot-eval's import does
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()  # lerobot_policy_* / lerobot_env_* packages, as lerobot-eval's main()
+
+    if builtin:
+        import draccus
+
+        from flatlab_lerobot.policies.scripted import FlatLabScriptedConfig
+
+        try:
+            return draccus.parse(config_class=FlatLabScriptedConfig, args=["--device=cpu", *overrides])
+        except SystemExit as e:
+            raise EvalError(f"bad --policy.* override for the built-in policy in {overrides}") from e
+    try:
+        cfg = PreTrainedConfig.from_pretrained(name, cli_overrides=overrides)
+    except SystemExit as e:
+        raise EvalError(f"bad --policy.* override {overrides} for {name}") from e
+    except Exception as e:  # missing file, unknown type, no hub access ...
+        where = Path(name) / "config.json" if Path(name).is_dir() else name
+        raise EvalError(f"{where}: cannot load the policy config: {type(e).__name__}: {e}") from e
+    cfg.pretrained_path = Path(name)
+    return cfg
+
+
+def check_features(policy_cfg, env_cfg) -> None:
+    """The inputs the checkpoint was trained on must be among the env's observations."""
+    from lerobot.envs.utils import env_to_policy_features
+
+    have = env_to_policy_features(env_cfg)
+    missing = [k for k in (policy_cfg.input_features or {}) if k not in have]
+    if missing:
+        raise EvalError(
+            f"the policy needs inputs {missing} that the env does not give (env gives {sorted(have)}): "
+            "set --env.cameras / --env.obs_pixels / --env.obs_pointcloud to match its training data"
+        )
+
+
+class Evaluator:
+    """One process's policy, processors and per-object envs; :meth:`run_object` yields trial records."""
+
+    def __init__(self, spec: dict):
+        import torch
+        from lerobot.envs import make_env_pre_post_processors
+        from lerobot.policies import make_policy, make_pre_post_processors
+        from lerobot.utils.device_utils import get_safe_torch_device
+        from lerobot.utils.random_utils import get_rng_state, set_seed
+
+        self.spec = spec
+        self.builtin = spec["builtin"]
+        self.env_cfg = make_env_config(spec["env_args"], self.builtin)
+        cfg = load_policy_config(spec["policy"], self.builtin, spec["policy_args"])
+        # as lerobot_eval.eval_main, in its order
+        self.device = get_safe_torch_device(cfg.device, log=False)
+        torch.backends.cudnn.benchmark = True
+        torch.backends.cuda.matmul.allow_tf32 = True
+        set_seed(spec["seed"])
+        # (the built-ins have nothing to normalize: lerobot's "policy from scratch" warning does not apply)
+        with _no_warnings() if self.builtin else nullcontext():
+            self.policy = make_policy(cfg=cfg, env_cfg=self.env_cfg, rename_map=spec["rename_map"])
+        self.policy.eval()
+        overrides = {
+            "device_processor": {"device": str(self.policy.config.device)},
+            "rename_observations_processor": {"rename_map": spec["rename_map"]},
+        }
+        self.pre, self.post = make_pre_post_processors(
+            policy_cfg=cfg, pretrained_path=cfg.pretrained_path, preprocessor_overrides=overrides
+        )
+        self.env_pre, self.env_post = make_env_pre_post_processors(env_cfg=self.env_cfg, policy_cfg=cfg)
+        self.cfg = cfg
+        self.rng0 = get_rng_state()  # what the first episode of a lerobot-eval run starts from
+
+    def run_object(self, object_id: str, trials: list[int]):
+        import torch
+        from lerobot.envs import close_envs, make_env
+        from lerobot.scripts import lerobot_eval
+        from lerobot.utils.random_utils import set_rng_state
+
+        spec = get_object(object_id)
+        if self.builtin:
+            self.policy.config.strategy = BUILTIN[self.spec["policy"]](spec)
+        set_rng_state(self.rng0)
+        env_cfg = dataclasses.replace(self.env_cfg, object_id=spec.id)
+        envs = make_env(env_cfg, n_envs=1, use_async_envs=False)
+        vec = envs[env_cfg.type][0]
+        amp = torch.autocast(device_type=self.device.type) if self.cfg.use_amp else nullcontext()
+        try:
+            for t in trials:
+                if self.spec.get("parent_pid") and os.getppid() != self.spec["parent_pid"]:
+                    os._exit(0)  # a worker whose parent was killed: stop now, not run on as an orphan
+                seed = self.spec["seed"] + t
+                t0 = time.perf_counter()
+                with torch.no_grad(), amp:
+                    info = lerobot_eval.eval_policy(
+                        env=vec, policy=self.policy, env_preprocessor=self.env_pre, env_postprocessor=self.env_post,
+                        preprocessor=self.pre, postprocessor=self.post, n_episodes=1, start_seed=seed,
+                    )  # fmt: skip
+                ep = info["per_episode"][0]
+                env = vec.envs[0].unwrapped
+                chosen = getattr(self.policy, "strategies", None)
+                strategy = chosen[0] if chosen else None
+                x, y, yaw = env.placement
+                st = env.sim.grasp_status()
+                success = bool(ep["success"])
+                reason = ""
+                if not success:
+                    reason = env._done_reason or (
+                        "timeout: " + ("object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped")
+                    )
+                yield {
+                    "policy": self.spec["policy"],
+                    "object_id": spec.id,
+                    "trial": t,
+                    "seed": ep["seed"],
+                    "split": spec.split,
+                    "category": spec.category,
+                    "label": spec.strategy,
+                    "strategy": strategy,
+                    "S": None if strategy is None else strategy == spec.strategy,
+                    "G": success,
+                    "steps": int(env._steps),
+                    "sim_time_s": round(float(env.sim.data.time), 3),
+                    "placement": {"x": x, "y": y, "yaw_deg": math.degrees(yaw)},
+                    "final_clearance_m": round(float(st.clearance), 4),
+                    "failure_reason": reason,
+                    "sum_reward": ep["sum_reward"],
+                    "wall_s": round(time.perf_counter() - t0, 3),
+                    "pid": os.getpid(),
+                }
+        finally:
+            close_envs(envs)
+
+
+@contextmanager
+def _no_warnings():
+    logging.disable(logging.WARNING)
+    try:
+        yield
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def _quiet_lerobot_bars() -> None:
+    """lerobot's per-episode tqdm bars would interleave with ours (one bar, counting trials)."""
+    from lerobot.scripts import lerobot_eval
+    from tqdm import trange
+
+    def quiet_trange(*args, **kwargs):
+        return trange(*args, **{**kwargs, "disable": True})
+
+    lerobot_eval.trange = quiet_trange
+
+
+def _die_with_parent() -> None:
+    """Linux: have the kernel SIGKILL this worker when the parent dies (e.g. ``kill -9``); elsewhere
+    the per-trial parent check in :meth:`Evaluator.run_object` stops it."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _worker(spec: dict, jobs, results, threads: int | None) -> None:
+    """Worker process: load the policy once, then take whole objects from ``jobs`` until a None."""
+    try:
+        _die_with_parent()
+        if threads:
+            import torch
+
+            torch.set_num_threads(threads)
+        _quiet_lerobot_bars()
+        ev = Evaluator(spec)
+        while (job := jobs.get()) is not None:
+            for rec in ev.run_object(job["object_id"], job["trials"]):
+                results.put(("trial", rec))
+            results.put(("object", job["object_id"]))
+    except BaseException:  # noqa: BLE001  reported to the parent, which stops the run
+        results.put(("error", f"worker {os.getpid()}:\n{traceback.format_exc()}"))
+
+
+# ----------------------------------------------------------------------------- bookkeeping
 def load_done(path: Path, policy: str) -> dict[tuple[str, int], dict]:
     """Finished trials in ``results.jsonl`` by (object_id, trial).  A half-written last line
     (an interrupted write) is cut off the file so later appends start on a clean line."""
@@ -90,19 +331,46 @@ def load_done(path: Path, policy: str) -> dict[tuple[str, int], dict]:
         except json.JSONDecodeError:
             continue
         if rec.get("policy") != policy:
-            raise SystemExit(f"{path} holds results of policy {rec.get('policy')!r}, not {policy!r}: use another --out")
+            raise EvalError(f"{path} holds results of policy {rec.get('policy')!r}, not {policy!r}: use another --out")
         done[(rec["object_id"], int(rec["trial"]))] = rec
     return done
 
 
+def check_run(out: Path, run: dict) -> None:
+    """``run.json`` pins what the trials in ``results.jsonl`` mean (policy, seed, env, overrides);
+    resuming with other settings would mix incomparable trials."""
+    path = out / RUN_JSON
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise EvalError(f"{path}: not valid JSON ({e}); delete it only if results.jsonl is empty") from e
+        run = json.loads(json.dumps(run))  # tuples -> lists, as stored
+        # env fields added to the EnvConfig since (with their defaults) do not count as a change
+        run["env"] = {k: v for k, v in run["env"].items() if k in old.get("env", {})}
+        diff = sorted(k for k in run if old.get(k) != run[k])
+        if diff:
+            raise EvalError(f"{path}: this folder was run with other settings ({', '.join(diff)}: "
+                            f"{ {k: old.get(k) for k in diff} }): use another --out")  # fmt: skip
+    else:
+        jsonl = out / RESULTS_JSONL
+        if jsonl.exists() and jsonl.stat().st_size > 0:
+            raise EvalError(f"{jsonl}: trials of an older flatlab eval (no {RUN_JSON} beside it): use another --out")
+        _atomic_text(path, json.dumps(run, indent=2))
+
+
 def select_objects(splits, objects) -> list[str]:
     if objects:
-        return [get_object(o).id for o in objects]
+        try:
+            return [get_object(o).id for o in objects]
+        except KeyError as e:
+            raise EvalError(f"--objects: {e.args[0] if e.args else e}") from None
     return [o.id for s in splits for o in sorted(benchmark_objects(s), key=lambda o: o.id)]
 
 
-def _rate(recs, key) -> float:
-    return sum(r[key] for r in recs) / len(recs) if recs else float("nan")
+def _rate(recs, key) -> float | None:
+    vals = [r[key] for r in recs if r.get(key) is not None]
+    return sum(vals) / len(vals) if vals else None
 
 
 def summarize(records: list[dict], config: dict) -> dict:
@@ -114,9 +382,13 @@ def summarize(records: list[dict], config: dict) -> dict:
              "trials": 0, "S": 0, "G": 0, "strategies": {}},
         )  # fmt: skip
         o["trials"] += 1
-        o["S"] += int(r["S"])
+        if r.get("S") is None:
+            o["S"] = None
+        elif o["S"] is not None:
+            o["S"] += int(r["S"])
         o["G"] += int(r["G"])
-        o["strategies"][r["strategy"]] = o["strategies"].get(r["strategy"], 0) + 1
+        key = r.get("strategy") or "-"
+        o["strategies"][key] = o["strategies"].get(key, 0) + 1
     per_split = {}
     for split in dict.fromkeys(o["split"] for o in per_object.values()):
         recs = [r for r in records if r["split"] == split]
@@ -134,14 +406,21 @@ def summarize(records: list[dict], config: dict) -> dict:
     }
 
 
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f}"
+
+
 def markdown(summary: dict) -> str:
     c = summary["config"]
+    env = c.get("env", {})
     lines = [
         f"# FlatLab evaluation: policy `{c['policy']}`",
         "",
         (
-            f"{c['trials']} trials per object, seeds {c['seed']}..{c['seed'] + c['trials'] - 1}; "
-            "S = strategy choice correct, G = grasp success (successes/trials)."
+            f"{c['trials']} trials per object, seeds {c['seed']}..{c['seed'] + c['trials'] - 1} "
+            f"(= `lerobot-eval --env.type=flatlab --seed={c['seed']} --eval.n_episodes={c['trials']} --eval.batch_size=1` "
+            f"per object), task `{env.get('task', 'grasp')}`, {env.get('episode_length', '?')} steps at {env.get('fps', '?')} Hz; "
+            "S = strategy choice correct (`-`: the policy exposes no strategy), G = grasp success (successes/trials)."
         ),
         "",
         "| split | category | object | label | S | G |",
@@ -149,12 +428,13 @@ def markdown(summary: dict) -> str:
     ]
     for o in summary["per_object"]:
         n = o["trials"]
-        lines.append(f"| {o['split']} | {o['category']} | {o['object_id']} | {o['label']} | {o['S']}/{n} | {o['G']}/{n} |")
+        s = "-" if o["S"] is None else f"{o['S']}/{n}"
+        lines.append(f"| {o['split']} | {o['category']} | {o['object_id']} | {o['label']} | {s} | {o['G']}/{n} |")
     lines += ["", "| split | objects | trials | S (%) | G (%) |", "|---|---|---|---|---|"]
     for split, s in summary["per_split"].items():
-        lines.append(f"| {split} | {s['objects']} | {s['trials']} | {100 * s['S']:.1f} | {100 * s['G']:.1f} |")
+        lines.append(f"| {split} | {s['objects']} | {s['trials']} | {_pct(s['S'])} | {_pct(s['G'])} |")
     ov = summary["overall"]
-    lines.append(f"| **all** | {len(summary['per_object'])} | {ov['trials']} | {100 * ov['S']:.1f} | {100 * ov['G']:.1f} |")
+    lines.append(f"| **all** | {len(summary['per_object'])} | {ov['trials']} | {_pct(ov['S'])} | {_pct(ov['G'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -166,16 +446,16 @@ def plot(summary: dict, path: Path) -> None:
     import numpy as np
 
     splits = list(summary["per_split"])
-    s = [100 * summary["per_split"][k]["S"] for k in splits]
+    s = [np.nan if summary["per_split"][k]["S"] is None else 100 * summary["per_split"][k]["S"] for k in splits]
     g = [100 * summary["per_split"][k]["G"] for k in splits]
     x = np.arange(len(splits))
     fig, ax = plt.subplots(figsize=(1.8 * len(splits) + 2, 3.2))
-    ax.bar(x - 0.2, s, 0.4, label="S: strategy choice")
+    ax.bar(x - 0.2, s, 0.4, label="S: strategy choice" + (" (n/a)" if all(np.isnan(s)) else ""))
     ax.bar(x + 0.2, g, 0.4, label="G: grasp success")
     ax.set_xticks(x, splits)
     ax.set_ylim(0, 105)
     ax.set_ylabel("%")
-    ax.set_title(f"policy {summary['config']['policy']}")
+    ax.set_title(f"policy {summary['config']['policy']}"[-60:])
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     tmp = path.with_name(".partial_" + path.name)
@@ -190,44 +470,112 @@ def _atomic_text(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+def _slug(policy: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", policy).strip("_")[-80:] or "policy"
+
+
+# ----------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="flatlab eval", description="S/G evaluation of a strategy-choosing policy over objects x trials")
-    ap.add_argument("--policy", choices=sorted(POLICIES), default="oracle")
+    ap = argparse.ArgumentParser(
+        prog="flatlab eval",
+        description="S/G evaluation of a policy (built-in scripted or any LeRobot checkpoint) over objects x trials, "
+        "episode for episode the same as lerobot-eval --env.type=flatlab. Extra --env.<field>=<value> and "
+        "--policy.<field>=<value> arguments are passed on as in lerobot-eval.",
+    )
+    ap.add_argument("--policy", default="oracle",
+                    help=f"one of {', '.join(BUILTIN)}; or a LeRobot pretrained_model folder / training output folder; "
+                    "or a hub repo id (default oracle)")  # fmt: skip
     ap.add_argument("--splits", default=",".join(BENCHMARK_SPLITS), help="comma-separated splits (default: all three)")
     ap.add_argument("--objects", default="", help="comma-separated object ids (overrides --splits; ref_* allowed)")
     ap.add_argument("--trials", type=int, default=5, help="trials per object (default 5)")
-    ap.add_argument("--seed", type=int, default=0, help="trial t uses placement seed SEED + t")
+    ap.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                    help=f"trial t uses episode seed SEED + t, as lerobot-eval's episode t (default {DEFAULT_SEED}, lerobot-eval's)")  # fmt: skip
     ap.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 1 = in-process)")
-    ap.add_argument("--max-time", type=float, default=25.0, help="simulated seconds per episode")
-    ap.add_argument("--max-trials", type=int, default=None, help="stop after this many newly finished trials (resume later)")
+    ap.add_argument(
+        "--torch-threads",
+        type=int,
+        default=None,
+        help="torch CPU threads per worker (default: torch's own, as in lerobot-eval; 1 avoids oversubscribing "
+        "2 cores with 2 workers but may change a learned policy's float rounding)",
+    )
+    ap.add_argument("--device", default=None, help="policy device (shortcut for --policy.device=...)")
+    ap.add_argument("--rename-map", default="{}", help="JSON observation rename map, as lerobot-eval's --rename_map")
+    ap.add_argument(
+        "--max-trials", type=int, default=None, help="stop after this many newly finished trials (resume later)"
+    )
     ap.add_argument("--out", type=Path, default=None, help="output folder (default outputs/eval/<policy>)")
     ap.add_argument("--no-plot", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
 
+def _split_extra(extra: list[str]) -> tuple[list[str], list[str]]:
+    env_args, policy_args = [], []
+    it = iter(extra)
+    for a in it:
+        for prefix, dest in (("--env.", env_args), ("--policy.", policy_args)):
+            if a.startswith(prefix):
+                body = a[len(prefix) :]
+                if "=" not in body:  # "--env.image_size 32"
+                    body = f"{body}={next(it, '')}"
+                dest.append("--" + body)
+                break
+        else:
+            raise EvalError(
+                f"unrecognized argument {a!r} (extra arguments must be --env.<field>=<value> or --policy.<field>=<value>)"
+            )
+    return env_args, policy_args
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    args, extra = build_parser().parse_known_args(argv)
+    env_args, policy_args = _split_extra(extra)
+    if args.device:
+        policy_args.append(f"--device={args.device}")
+    if args.trials < 1:
+        raise EvalError("--trials must be >= 1")
+    try:
+        rename_map = json.loads(args.rename_map)
+    except json.JSONDecodeError as e:
+        raise EvalError(f"--rename-map: not JSON ({e})") from e
+    import flatlab_lerobot  # noqa: F401  registers the flatlab env and policy types
     from flatlab_lerobot.paths import OUTPUTS_DIR
 
-    out = args.out or OUTPUTS_DIR / "eval" / args.policy
+    policy, builtin = resolve_policy(args.policy)
+    env_cfg = make_env_config(env_args, builtin)
+    policy_cfg = load_policy_config(policy, builtin, policy_args)
+    if not builtin:
+        check_features(policy_cfg, env_cfg)
+    out = args.out or OUTPUTS_DIR / "eval" / _slug(args.policy)
     out.mkdir(parents=True, exist_ok=True)
     splits = [s.strip() for s in args.splits.split(",") if s.strip()]
     objects = select_objects(splits, [o.strip() for o in args.objects.split(",") if o.strip()])
-    config = {"policy": args.policy, "objects": objects, "trials": args.trials, "seed": args.seed, "max_time": args.max_time}
+    env_desc = {k: v for k, v in env_cfg.gym_kwargs.items() if k != "object_id"} | {"fps": env_cfg.fps}
+    run = {"policy": policy, "seed": args.seed, "env": env_desc, "policy_args": policy_args, "rename_map": rename_map}
+    check_run(out, run)
+    config = {**run, "objects": objects, "trials": args.trials, "policy_type": policy_cfg.type}
     jsonl = out / RESULTS_JSONL
-    done = load_done(jsonl, args.policy)
-    jobs = [
-        {"policy": args.policy, "object_id": o, "trial": t, "seed": args.seed + t, "max_time": args.max_time}
-        for o in objects
-        for t in range(args.trials)
-        if (o, t) not in done
-    ]
+    done = load_done(jsonl, policy)
+    jobs = []
+    for o in objects:
+        todo = [t for t in range(args.trials) if (o, t) not in done]
+        if todo:
+            jobs.append({"object_id": o, "trials": todo, "slow": get_object(o).material == "deformable"})
+    jobs.sort(key=lambda j: not j["slow"])  # slow (cloth) objects first: the two workers end together
     total = len(objects) * args.trials
-    budget = len(jobs) if args.max_trials is None else min(len(jobs), args.max_trials)
+    n_todo = sum(len(j["trials"]) for j in jobs)
+    budget = n_todo if args.max_trials is None else min(n_todo, args.max_trials)
+    spec = {"policy": policy, "builtin": builtin, "env_args": env_args, "policy_args": policy_args,
+            "rename_map": rename_map, "seed": args.seed}  # fmt: skip
+    if budget > 0 and args.workers <= 1:
+        trials = _run_in_process(spec, jobs)
+    elif budget > 0:  # start the workers before any thread (tqdm's monitor) exists in this process
+        trials = _run_workers(spec, jobs, min(args.workers, len(jobs)), args.torch_threads)
     from tqdm import tqdm
 
-    bar = tqdm(total=total, initial=total - len(jobs), desc=f"eval {args.policy}", unit="trial", disable=args.quiet)
+    bar = tqdm(
+        total=total, initial=total - n_todo, desc=f"eval {_slug(args.policy)[-30:]}", unit="trial", disable=args.quiet
+    )
     finished = 0
     with open(jsonl, "a") as f:
 
@@ -239,21 +587,15 @@ def main(argv=None) -> int:
             bar.update(1)
             bar.set_postfix(G=f"{_rate(list(done.values()), 'G'):.2f}")
 
-        if budget > 0 and args.workers <= 1:
-            for job in jobs[:budget]:
-                record(run_trial(job))
-                finished += 1
-        elif budget > 0:
-            pool = mp.get_context("fork").Pool(args.workers, maxtasksperchild=20)
+        if budget > 0:
             try:
-                for rec in pool.imap_unordered(run_trial, jobs, chunksize=1):
+                for rec in trials:
                     record(rec)
                     finished += 1
                     if finished >= budget:
                         break
             finally:
-                pool.terminate()
-                pool.join()
+                trials.close()
     bar.close()
     remaining = sum(1 for o in objects for t in range(args.trials) if (o, t) not in done)
     if remaining:
@@ -266,8 +608,73 @@ def main(argv=None) -> int:
     if not args.no_plot:
         plot(summary, out / "results.png")
     ov = summary["overall"]
-    print(f"policy {args.policy}: S {100 * ov['S']:.1f}%  G {100 * ov['G']:.1f}% over {ov['trials']} trials; {out}")
+    print(f"policy {args.policy}: S {_pct(ov['S'])}%  G {_pct(ov['G'])}% over {ov['trials']} trials; {out}")
     return 0
+
+
+def _run_in_process(spec: dict, jobs: list[dict]):
+    """The trials of ``jobs`` in this process, as they finish."""
+    _quiet_lerobot_bars()
+    ev = Evaluator(spec)
+    for job in jobs:
+        gen = ev.run_object(job["object_id"], job["trials"])
+        try:
+            yield from gen
+        finally:
+            gen.close()  # closes the env when the caller stops early
+
+
+def _run_workers(spec: dict, jobs: list[dict], n: int, threads: int | None = None):
+    """Start ``n`` forked worker processes on ``jobs`` (whole objects) and return a generator of
+    their trial records as they arrive.  Closing it (budget reached, error, interrupt) kills them."""
+    import importlib
+
+    for name in ("lerobot.envs", "lerobot.policies", "lerobot.scripts.lerobot_eval"):
+        importlib.import_module(name)  # imported once here, inherited by the forked workers
+
+    ctx = mp.get_context("fork")
+    job_q, res_q = ctx.Queue(), ctx.Queue()
+    for job in jobs:
+        job_q.put(job)
+    for _ in range(n):
+        job_q.put(None)
+    spec = {**spec, "parent_pid": os.getpid()}
+    procs = [ctx.Process(target=_worker, args=(spec, job_q, res_q, threads), daemon=True) for _ in range(n)]
+    for p in procs:
+        p.start()
+
+    def results():
+        objects_left = len(jobs)
+        try:
+            while objects_left > 0:
+                try:
+                    kind, payload = res_q.get(timeout=1.0)
+                except queue_mod.Empty:
+                    dead = [p for p in procs if p.exitcode not in (None, 0)]
+                    if dead:
+                        raise EvalError(
+                            f"worker {dead[0].pid} died (exit code {dead[0].exitcode}); finished trials are saved, rerun to resume"
+                        ) from None
+                    if all(p.exitcode == 0 for p in procs):
+                        raise EvalError("the workers exited with objects left; rerun to resume") from None
+                    continue
+                if kind == "trial":
+                    yield payload
+                elif kind == "object":
+                    objects_left -= 1
+                else:
+                    raise EvalError(f"a worker failed; finished trials are saved.\n{payload}")
+        finally:
+            for p in procs:
+                if p.is_alive():
+                    p.terminate()
+            for p in procs:
+                p.join(timeout=10)
+                if p.is_alive():
+                    p.kill()
+                    p.join()
+
+    return results()
 
 
 if __name__ == "__main__":
