@@ -5,6 +5,7 @@
 * ``oracle``: the object's label strategy (the upper bound of strategy choice),
 * ``slide_only``: always A (slide to the edge, grasp the overhang),
 * ``lift_only``: always B (two-arm squeeze and lift),
+* ``fold_only``: always C (squeeze into a fold, pinch the fold; the asset validation's third column),
 * ``flatlab_scripted``: the ``flatlab_scripted`` policy's own rule (C if deformable, else B if
   >= 4 cm thick, else A), exactly ``lerobot-eval --policy.type=flatlab_scripted``,
 * a folder holding a LeRobot ``pretrained_model`` (``config.json`` + ``model.safetensors`` +
@@ -61,6 +62,7 @@ BUILTIN = {
     "oracle": lambda spec: spec.strategy,
     "slide_only": lambda spec: "A",
     "lift_only": lambda spec: "B",
+    "fold_only": lambda spec: "C",
     "flatlab_scripted": lambda spec: "auto",
 }
 """Built-in policy -> the ``flatlab_scripted`` strategy setting it uses for an object."""
