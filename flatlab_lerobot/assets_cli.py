@@ -5,6 +5,9 @@
   compile every object in the cell; returns a list of problems (empty = all good).
 * :func:`contact_sheet` -- render every object alone on a small plain table (oblique view) into
   one labelled PNG grid, with MuJoCo's offscreen renderer (``MUJOCO_GL=egl`` on headless machines).
+* :func:`scene_sheet` -- render every scene of ``envs/scenes`` (full cell: room dressing, table,
+  arms at home, a reference object on the table) from an oblique overview camera into one
+  labelled PNG grid.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -51,13 +55,26 @@ def validate(compile_models: bool = True) -> list[str]:
         return [str(exc)]
     problems += check_counts(objects)
     try:
-        load_scenes()
+        scenes = load_scenes()
     except CatalogError as exc:
         problems.append(str(exc))
+        scenes = {}
     if compile_models:
         import mujoco
 
+        from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene
         from flatlab_lerobot.sim.scene import CellConfig, build_model
+
+        for sid in scenes:
+            try:
+                m = build_model(CellConfig(**cell_config_for_scene(sid)), objects[REFERENCE_OBJECTS["B"]])
+                d = mujoco.MjData(m)
+                mujoco.mj_step(m, d)
+                warn = [i for i, w in enumerate(d.warning) if w.number]
+                if warn:
+                    problems.append(f"scene '{sid}': MuJoCo warnings {warn} after one step")
+            except Exception as exc:  # noqa: BLE001
+                problems.append(f"scene '{sid}': does not compile: {exc}")
 
         for o in objects.values():
             try:
@@ -76,7 +93,7 @@ def preview_xml(obj: ObjectSpec, table_size=(3.0, 3.0), table_rgba=(0.82, 0.8, 0
     """A tiny model: ``obj`` alone on a plain table top at height 0.1 m, with one oblique camera."""
     h = PREVIEW_TABLE_HEIGHT
     span = max(obj.size[0], obj.size[1], 0.12)
-    dist = 1.25 * span + 0.05
+    dist = 1.6 * span + 0.05  # the whole object in frame, also a long diagonal
     cam = np.array([0.55 * dist, -0.2 * dist, h + 0.95 * dist])
     from flatlab_lerobot.sim.scene import look_at_xyaxes
 
@@ -142,18 +159,117 @@ def contact_sheet(out_png: str | Path, cols: int = 10, tile: int = 200, include_
         sheet.paste(img, (x, y))
         draw.text((x + 3, y + tile + 1), o.id[:32], fill=(0, 0, 0), font=font)
         draw.text((x + 3, y + tile + 14), f"{o.category} | {o.split} | {o.strategy}", fill=colours[o.split], font=font)
+    return _save_png(sheet, out_png)
+
+
+def _save_png(img, out_png: str | Path) -> Path:
+    """Write ``img`` (PIL) to ``out_png`` atomically (temp file in the same folder, then rename)."""
     out = Path(out_png)
     out.parent.mkdir(parents=True, exist_ok=True)
-    sheet.save(out)
+    tmp = out.with_name(f".{out.name}.tmp")
+    img.save(tmp, format="PNG")
+    tmp.replace(out)
     return out
 
 
+# Oblique overview of a whole cell for the scene sheet: from the front-right corner, high up, so the
+# back wall, the left side wall, the props, the table and both arms are in view.
+OVERVIEW_POS = (2.2, -1.3, 2.1)
+OVERVIEW_TARGET = (-0.6, 0.05, 0.72)
+OVERVIEW_FOVY = 56.0
+
+
+def overview_camera(pos=OVERVIEW_POS, target=OVERVIEW_TARGET):
+    """A free ``mujoco.MjvCamera`` at ``pos`` looking at ``target`` (no camera is added to the model)."""
+    import mujoco
+
+    f = np.asarray(target, float) - np.asarray(pos, float)
+    dist = float(np.linalg.norm(f))
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = target
+    cam.distance = dist
+    cam.azimuth = float(np.degrees(np.arctan2(f[1], f[0])))
+    cam.elevation = float(np.degrees(np.arcsin(f[2] / dist)))
+    return cam
+
+
+def render_scene(scene_id: str, object_id: str | None = None, width: int = 480, height: int = 360,
+                 camera=None, supersample: int = 2):
+    """RGB image (height x width x 3, uint8) of scene ``scene_id`` with ``object_id`` (default: the
+    strategy-B reference box) on the table and both arms at home, seen by ``camera`` (a camera name
+    of the cell, or default the overview camera).  Rendered ``supersample`` times larger, then
+    downsampled (anti-aliasing)."""
+    import mujoco
+    from PIL import Image
+
+    from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, get_object
+    from flatlab_lerobot.sim.core import FlatLabSim
+    from flatlab_lerobot.sim.scene import CellConfig
+
+    sim = FlatLabSim(get_object(object_id or REFERENCE_OBJECTS["B"]), CellConfig(**cell_config_for_scene(scene_id)))
+    sim.reset()
+    m = sim.model
+    fovy = m.vis.global_.fovy
+    m.vis.global_.fovy = OVERVIEW_FOVY
+    r = mujoco.Renderer(m, height * supersample, width * supersample)
+    try:
+        r.update_scene(sim.data, camera=camera if camera is not None else overview_camera())
+        img = r.render().copy()
+    finally:
+        r.close()
+        m.vis.global_.fovy = fovy
+    if supersample > 1:
+        img = np.asarray(Image.fromarray(img).resize((width, height), Image.LANCZOS))
+    return img
+
+
+def scene_sheet(out_png: str | Path, cols: int = 6, tile: tuple[int, int] = (360, 270), object_id: str | None = None,
+                scene_ids: list[str] | None = None) -> Path:
+    """Render every scene (or ``scene_ids``) into one labelled grid PNG (scene id; room, table
+    material and edge profile; table size and height); returns its path."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    from flatlab_lerobot.catalog import ROOMS, load_materials
+
+    scenes = load_scenes()
+    mats = load_materials()
+    ids = scene_ids or sorted(scenes, key=lambda s: (ROOMS.index(scenes[s].room), s))
+    for sid in ids:
+        if sid not in scenes:
+            raise KeyError(f"unknown scene id {sid!r}; known: {sorted(scenes)}")
+    tw, th = tile
+    label_h = 34
+    rows = (len(ids) + cols - 1) // cols
+    sheet = Image.new("RGB", (cols * tw, rows * (th + label_h)), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    try:
+        font = ImageFont.load_default(size=12)
+    except TypeError:  # Pillow < 10.1
+        font = ImageFont.load_default()
+    for k, sid in enumerate(ids):
+        s = scenes[sid]
+        x, y = (k % cols) * tw, (k // cols) * (th + label_h)
+        sheet.paste(Image.fromarray(render_scene(sid, object_id, tw, th)), (x, y))
+        draw.text((x + 4, y + th + 2), f"{sid}  ({s.room})", fill=(0, 0, 0), font=font)
+        draw.text((x + 4, y + th + 17),
+                  f"{mats[s.material].name} | {s.edge} edge | {s.table_size[0]:g}x{s.table_size[1]:g} m, h {s.table_height:g} m",
+                  fill=(60, 60, 140), font=font)
+    return _save_png(sheet, out_png)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point: ``python -m flatlab_lerobot.assets_cli {list,validate,contact-sheet}``."""
+    """Stand-alone entry point: ``python -m flatlab_lerobot.assets_cli {list,validate,contact-sheet,scene-sheet}``."""
     import argparse
 
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["report"]:  # the validation report has its own parser (flatlab assets report --help)
+        from flatlab_lerobot.bench.validation import main as report_main
+
+        return report_main(argv[1:])
     p = argparse.ArgumentParser(prog="flatlab assets")
     sub = p.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("report", help="run every strategy on every object and write the validation report (see --help)")
     pl = sub.add_parser("list", help="list the catalog objects")
     pl.add_argument("--split")
     pl.add_argument("--category")
@@ -163,6 +279,12 @@ def main(argv: list[str] | None = None) -> int:
     pc.add_argument("out", nargs="?", default="outputs/contact_sheet.png")
     pc.add_argument("--cols", type=int, default=10)
     pc.add_argument("--tile", type=int, default=200)
+    ps = sub.add_parser("scene-sheet", help="render all scenes (room, table, arms, a reference object) into one PNG")
+    ps.add_argument("--out", default="outputs/scene_sheet.png")
+    ps.add_argument("--cols", type=int, default=6)
+    ps.add_argument("--tile", default="360x270", help="tile size WxH in pixels")
+    ps.add_argument("--object", default=None, help="object on the table (default: ref_box)")
+    ps.add_argument("--scenes", default=None, help="comma-separated scene ids (default: all)")
     a = p.parse_args(argv)
     if a.cmd == "list":
         print("\n".join(list_objects(a.split, a.category)))
@@ -171,6 +293,14 @@ def main(argv: list[str] | None = None) -> int:
         problems = validate(compile_models=not a.no_compile)
         print("\n".join(problems) if problems else "ok: catalog, materials and scenes are valid")
         return 1 if problems else 0
+    if a.cmd == "scene-sheet":
+        try:
+            tw, th = (int(v) for v in a.tile.lower().split("x"))
+        except ValueError:
+            p.error(f"--tile must look like 360x270, got {a.tile!r}")
+        ids = [s.strip() for s in a.scenes.split(",")] if a.scenes else None
+        print(scene_sheet(a.out, cols=a.cols, tile=(tw, th), object_id=a.object, scene_ids=ids))
+        return 0
     print(contact_sheet(a.out, cols=a.cols, tile=a.tile))
     return 0
 
