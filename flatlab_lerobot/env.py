@@ -18,6 +18,13 @@ Reward is sparse (1.0 on the step the success rule is met).  The episode termina
 (object lifted >= 5 cm off the table, held >= 2 s with < 1 cm slip) or when the physics diverges
 (``info["failure_reason"]``); it is truncated after ``episode_length`` steps.  ``info["is_success"]``
 is set on every reset and step.
+
+The cell: ``scene`` (an ``envs/scenes`` id, e.g. ``kitchen_counter``: table size, height, edge,
+material, room dressing) or ``cell`` (a ``CellConfig``); neither = the plain default cell.
+
+``task="clear_desk"`` (a scenario, ``tasks.SCENARIOS``): every reset draws a desk layout of five
+objects in one cell (``options["desk_seed"]`` picks one); the privileged state and the object cloud
+refer to the first object still on the table; set ``episode_length`` to the scenario's (1450).
 """
 
 from __future__ import annotations
@@ -28,12 +35,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from flatlab_lerobot.catalog import REFERENCE_OBJECTS, load_objects
+from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, load_objects
 from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
 from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.sim.scene import CellConfig
-from flatlab_lerobot.tasks import TASKS, task_context
+from flatlab_lerobot.tasks import SCENARIOS, TASKS, task_context
 
 GYM_ID = "lerobot_env_flatlab/FlatLab-v0"
 TASK_DESCRIPTIONS = {
@@ -66,6 +73,7 @@ class FlatLabEnv(gym.Env):
         obs_pixels: bool = True,
         obs_pointcloud: bool = True,
         cell: CellConfig | None = None,
+        scene: str | None = None,
         task: str | None = None,
     ):
         super().__init__()
@@ -91,7 +99,10 @@ class FlatLabEnv(gym.Env):
         self.render_size, self.render_camera = int(render_size), render_camera
         self.obs_pixels, self.obs_pointcloud = bool(obs_pixels), bool(obs_pointcloud)
         self.metadata = {**self.metadata, "render_fps": round(1 / self.control_dt)}
-        self._cell = cell
+        if scene and cell is not None:
+            raise ValueError("give either scene (an envs/scenes id) or cell (a CellConfig), not both")
+        self.scene = scene or None  # None: the default cell
+        self._cell = CellConfig(**cell_config_for_scene(scene)) if scene else cell
         self._objects = load_objects()
         self.sim: FlatLabSim | None = None
         self.rig: CameraRig | None = None
@@ -103,21 +114,30 @@ class FlatLabEnv(gym.Env):
         self._done_reason: str | None = None
 
     # ------------------------------------------------------------------ construction
-    def _build(self, object_id: str) -> None:
+    def _build(self, object_id: str, layout=None) -> None:
+        scenario = SCENARIOS.get(self._task_override or "")
+        if scenario is not None:  # several objects in one cell (a desk layout; reset draws one per seed)
+            self.layout = layout or scenario.layout(0)
+            object_id = self.layout.items[0].obj.id
         if object_id not in self._objects:
             raise ValueError(f"unknown object {object_id!r}; known: {sorted(self._objects)}")
         if self.rig is not None:
             self.rig.close()
         self.object_id = object_id
         self.obj = self._objects[object_id]
-        self.sim = FlatLabSim(self.obj, self._cell, control_dt=self.control_dt)
+        if scenario is not None:
+            from flatlab_lerobot.desk import make_desk_sim
+
+            self.sim = make_desk_sim(self.layout, self._cell, self.control_dt)
+        else:
+            self.sim = FlatLabSim(self.obj, self._cell, control_dt=self.control_dt)
         self.cell = self.sim.cell
         needed = set(self.cameras) | set(self.pointcloud_cameras) | {self.render_camera}
         self.rig = CameraRig(self.sim.model, self.image_size, self.image_size, sorted(needed))
         task_id = self._task_override or "grasp"
-        if task_id not in TASKS:
-            raise ValueError(f"unknown task {task_id!r}; known: {sorted(TASKS)}")
-        self.task_spec = TASKS[task_id]
+        if task_id not in TASKS and scenario is None:
+            raise ValueError(f"unknown task {task_id!r}; known: {sorted(TASKS) + sorted(SCENARIOS)}")
+        self.task_spec = scenario or TASKS[task_id]
         self.task = task_id
         self.task_description = (
             TASK_DESCRIPTIONS.get(self.obj.strategy, "Lift the flat object off the table.")
@@ -171,6 +191,10 @@ class FlatLabEnv(gym.Env):
     def _task_success(self) -> bool:
         """The selected task's predicate (``grasp``: the benchmark's 2-s hold rule).  Once met, the
         episode counts as a success (it terminates on that step)."""
+        if self.task in SCENARIOS:  # the privileged state follows the next object still on the table
+            from flatlab_lerobot.desk import advance_target
+
+            advance_target(self.sim)
         self._task_done = self._task_done or bool(self.task_spec.success(self.sim, self._task_ctx))
         return self._task_done
 
@@ -197,6 +221,10 @@ class FlatLabEnv(gym.Env):
         yaw = rng.uniform(-self.yaw_range, self.yaw_range)
         if "placement" in options:  # explicit (x, y, yaw)
             x, y, yaw = (float(v) for v in options["placement"])
+        if self.task in SCENARIOS:  # a new desk layout (objects, poses) per reset, or options["desk_seed"]'s
+            self._build(self.object_id, SCENARIOS[self.task].layout(int(options.get("desk_seed", rng.integers(2**31)))))
+            first = self.layout.items[0]
+            x, y, yaw = first.x, first.y, first.yaw
         self.placement = (float(x), float(y), float(yaw))
         self.sim.reset(*self.placement)
         self._task_ctx = task_context(self.task_spec, self.sim)

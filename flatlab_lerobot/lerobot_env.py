@@ -23,10 +23,13 @@ class FlatLabEnvConfig(EnvConfig):
     """FlatLab cell with one object.  ``object_id`` picks the object (catalog id, e.g. ref_book,
     ref_box, ref_towel); ``task`` picks the success predicate: one of ``flatlab_lerobot.tasks.TASKS``
     (``grasp`` = the benchmark's full 2-s hold rule; ``touch``, ``slide``, ``slide_to_edge``, ``press``,
-    ``grasp_single``, ``pick_up``, ``touch_dual``, ``lift_coop``, ``squeeze_edge``, ``grasp_edge``)."""
+    ``grasp_single``, ``pick_up``, ``touch_dual``, ``lift_coop``, ``squeeze_edge``, ``grasp_edge``), or the
+    scenario ``clear_desk`` (five objects in one cell; use ``episode_length=1450``)).
+    ``scene``: an ``envs/scenes`` id (room, table size/height/edge/material); None = the default cell."""
 
     task: str | None = "grasp"
     object_id: str = "ref_book"
+    scene: str | None = None
     fps: int = 10
     episode_length: int = 300
     image_size: int = 96
@@ -101,6 +104,7 @@ class FlatLabEnvConfig(EnvConfig):
         return {
             "object_id": self.object_id,
             "task": self.task,
+            "scene": self.scene,
             "cameras": tuple(self.cameras),
             "pointcloud_cameras": tuple(self.pointcloud_cameras) if self.pointcloud_cameras else None,
             "image_size": self.image_size,

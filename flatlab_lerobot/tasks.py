@@ -13,7 +13,9 @@ every one can fail (see ``tests/test_tasks.py``).
 :func:`run_task_episode` runs one episode (scripted expert, or no action) and records a
 :class:`Trajectory`; :func:`episode_metrics` turns a recorded trajectory into the per-episode
 metrics (success, time/steps to completion, TCP jerk, primitives executed, strategy).
-:data:`SCENARIOS` chains tasks over several objects (``clear_desk``).
+:data:`SCENARIOS` chains several objects in ONE cell (``clear_desk``: a cluttered desk of five
+Test-beta objects cleared one after another, :mod:`flatlab_lerobot.desk`); :func:`run_scenario`
+runs one with the scripted expert and returns its metrics.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import mujoco
 import numpy as np
 
 from flatlab_lerobot.catalog import get_object
+from flatlab_lerobot.desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
 from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.robot import ARMS
 
@@ -45,10 +48,21 @@ ON_TABLE_CLEARANCE = 0.01  # m: "still on the table": lowest point at most this 
 @dataclass(frozen=True)
 class ResetDistribution:
     """Object placement at reset: uniform planar offset in ±``planar`` m (x and y) and yaw in
-    ±``yaw_deg`` degrees.  The default equals :func:`flatlab_lerobot.demo.sample_placement`."""
+    ±``yaw_deg`` degrees.  The default equals :func:`flatlab_lerobot.demo.sample_placement`.
+
+    ``scenes``: optional scene ids (``envs/scenes``) an episode's cell is drawn from, uniformly, by
+    :meth:`scene` (its own random stream, so the placement of a seed does not change); empty (the
+    default) = the plain default cell."""
 
     planar: float = 0.05
     yaw_deg: float = 30.0
+    scenes: tuple[str, ...] = ()
+
+    def scene(self, seed: int) -> str | None:
+        """The scene of episode ``seed`` (None: the default cell)."""
+        if not self.scenes:
+            return None
+        return self.scenes[int(np.random.default_rng([seed, 7]).integers(len(self.scenes)))]
 
     def sample(self, seed: int) -> tuple[float, float, float]:
         rng = np.random.default_rng(seed)
@@ -263,21 +277,41 @@ TASKS: dict[str, TaskSpec] = {
 
 @dataclass(frozen=True)
 class Scenario:
-    """A chain of (task id, object id, expert strategy) steps, each in a fresh cell; it succeeds
-    when every step does, in order (the chain stops at the first failure)."""
+    """A chained scenario: several objects in ONE cell, cleared one after another in the same
+    physics episode (:mod:`flatlab_lerobot.desk`).  ``success(sim, ctx)`` is its predicate,
+    checked after every control step like a task's; ``reset`` the layout distribution (which
+    objects, planar poses and yaws, clearing order; per-object step budgets)."""
 
     id: str
     description: str
-    steps: tuple[tuple[str, str, str], ...]
+    success: Callable[[FlatLabSim, TaskContext], bool]
+    reset: DeskConfig = field(default_factory=DeskConfig)
+    make_target: Callable[[FlatLabSim, TaskContext], None] | None = None  # (as TaskSpec; none needed)
+
+    @property
+    def episode_length(self) -> int:
+        """Control steps (10 Hz): the sum of the per-object budgets."""
+        return self.reset.episode_length
+
+    def layout(self, seed: int) -> DeskLayout:
+        return sample_desk(seed, self.reset)
+
+
+def _clear_desk(sim, ctx):
+    return desk_cleared(sim)
 
 
 SCENARIOS: dict[str, Scenario] = {
     "clear_desk": Scenario(
         "clear_desk",
-        "Clear the desk: pick up the box with both arms, then the book by sliding it to the edge, then the towel.",
-        (("grasp", "ref_box", "B"), ("grasp", "ref_book", "A"), ("grasp", "ref_towel", "C")),
+        "Clear the cluttered desk: five rigid Test-beta objects of five categories (three labelled A, two "
+        "labelled B) lie in one cell; lift each one (the 2-s hold rule), carry it past the usable edge and "
+        "drop it into the bin, until none is left on the table.",
+        _clear_desk,
     ),
 }
+"""Scenario id -> spec (``clear_desk``).  Success: every object was lifted by the robot (the hold
+rule was met for it) and none is left on the table (each centre >= 10 cm below the table top)."""
 
 
 def get_task(task_id: str) -> TaskSpec:
@@ -302,10 +336,20 @@ class Trajectory:
     success: list = field(default_factory=list)  # predicate value
     failure: str = ""
     wall_s: float = 0.0
+    scene: str | None = None  # scene id (None: the default cell)
 
 
-def start_episode(task: TaskSpec, object_id: str, seed: int) -> tuple[FlatLabSim, TaskContext]:
-    sim = FlatLabSim(get_object(object_id))
+def start_episode(task: TaskSpec, object_id: str, seed: int, scene: str | None = None) -> tuple[FlatLabSim, TaskContext]:
+    """A fresh cell (``scene``, else the task's reset distribution's scene for ``seed``, else the
+    default cell) with ``object_id`` placed for ``seed``."""
+    scene = scene or task.reset.scene(seed)
+    cell = None
+    if scene:
+        from flatlab_lerobot.catalog import cell_config_for_scene
+        from flatlab_lerobot.sim.scene import CellConfig
+
+        cell = CellConfig(**cell_config_for_scene(scene))
+    sim = FlatLabSim(get_object(object_id), cell)
     sim.reset(*task.reset.sample(seed))
     return sim, task_context(task, sim)
 
@@ -325,17 +369,19 @@ def run_task_episode(
     strategy: str | None = "expert",
     seed: int = 0,
     max_steps: int | None = None,
+    scene: str | None = None,
 ) -> Trajectory:
     """One episode of ``task_id`` on ``object_id`` (default: the task's reference object).
     ``strategy``: "expert" (the task's expert strategy), "A"/"B"/"C", or None (no action).
+    ``scene``: a scene id of ``envs/scenes`` (default: the task's reset distribution decides).
     Stops at the first step where the predicate holds, or after ``max_steps`` (default: the
     task's episode length)."""
     task = get_task(task_id)
     object_id = object_id or task.reference_object
     if strategy == "expert":
         strategy = task.expert_strategy
-    sim, ctx = start_episode(task, object_id, seed)
-    traj = Trajectory(task_id, object_id, strategy, seed, sim.control_dt)
+    sim, ctx = start_episode(task, object_id, seed, scene)
+    traj = Trajectory(task_id, object_id, strategy, seed, sim.control_dt, scene=sim.cell.scene_id or None)
     if strategy is not None:
         from flatlab_lerobot.strategies import Expert
 
@@ -393,17 +439,33 @@ def episode_metrics(traj: Trajectory) -> dict:
         "primitives_executed": len(prims),
         "failure": traj.failure,
         "wall_s": round(traj.wall_s, 3),
+        "scene": traj.scene,
     }
 
 
-def run_scenario(scenario_id: str, seed: int = 0) -> dict:
-    """Run a chained scenario with the scripted expert; returns per-step metrics and success."""
+def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert") -> dict:
+    """One episode of a scenario on the layout of ``seed``, with the scripted expert ("expert":
+    each object's labelled strategy; "A"/"B": that one for every object; None: no action).
+    Returns plain-JSON metrics: success, objects cleared / in the layout, per-object results
+    (lifted, cleared, steps), time/steps to completion, TCP jerk, wall time."""
     sc = SCENARIOS[scenario_id]
-    steps = []
-    for task_id, object_id, strategy in sc.steps:
-        m = episode_metrics(run_task_episode(task_id, object_id, strategy, seed))
-        steps.append(m)
-        if not m["success"]:
-            break
-    ok = len(steps) == len(sc.steps) and all(s["success"] for s in steps)
-    return {"scenario": scenario_id, "seed": seed, "success": ok, "completed": sum(s["success"] for s in steps), "steps": steps}
+    ep = run_desk_episode(seed, strategy, sc.reset)
+    success = any(ep.success)
+    n = ep.success.index(True) + 1 if success else len(ep.success)
+    return {
+        "scenario": scenario_id,
+        "seed": seed,
+        "strategy": strategy,
+        "object_ids": ep.object_ids,
+        "success": success,
+        "cleared": sum(o["cleared"] for o in ep.per_object),
+        "n_objects": len(ep.object_ids),
+        "objects": ep.per_object,
+        "steps_to_completion": n if success else None,
+        "time_to_completion_s": round(n * ep.dt, 3) if success else None,
+        "steps": len(ep.success),
+        "episode_length": sc.episode_length,
+        "mean_squared_jerk": mean_squared_jerk(ep.tcp[:n], ep.dt),
+        "failure": ep.failure,
+        "wall_s": round(ep.wall_s, 3),
+    }

@@ -10,13 +10,11 @@ import numpy as np
 import pytest
 
 from flatlab_lerobot.tasks import (
-    SCENARIOS,
     TASKS,
     ResetDistribution,
     Trajectory,
     episode_metrics,
     mean_squared_jerk,
-    run_scenario,
     run_task_episode,
 )
 
@@ -128,9 +126,4 @@ def test_metrics_from_a_recorded_trajectory():
     assert m["primitives_executed"] == 2 and m["strategy"] == "A"
 
 
-@pytest.mark.slow
-def test_clear_desk_rigid_part():
-    # the cloth step of clear_desk takes ~20 s; the first two (rigid) steps are checked here
-    res = run_scenario("clear_desk", seed=EXPERT_SEED)
-    assert res["steps"][0]["success"] and res["steps"][1]["success"]
-    assert res["completed"] >= 2 and len(SCENARIOS["clear_desk"].steps) == 3
+# The clear_desk scenario (five objects in one cell) is tested in test_clear_desk.py.

@@ -1,5 +1,10 @@
 """The simulation core: one cell (two arms + one object), stepping, control, contacts, success.
 
+A cell may also hold rigid *clutter* objects (a cluttered desk, :mod:`flatlab_lerobot.desk`).
+Then one of the objects is the *target* (:meth:`FlatLabSim.set_target`): the privileged state,
+the object-only point cloud and the success rule's status refer to it, while the 2-s hold rule
+is tracked for every object (``FlatLabSim.lifted`` latches per object when it was met).
+
 Control is joint-position targets (7 joints + gripper width per arm, 16 numbers).  Within one
 control step the actuator targets move linearly from the previous to the new target, so a
 10 Hz policy still produces smooth motion.  End-effector targets are turned into joint targets
@@ -8,15 +13,16 @@ by differential IK (:class:`~flatlab_lerobot.sim.robot.DualArmIK`) on a robot-on
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from flatlab_lerobot.assets import OBJECT_BODY
 from flatlab_lerobot.catalog import ObjectSpec
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, HOME_Q, ArmIndex, DualArmIK
-from flatlab_lerobot.assets import OBJECT_BODY
-from flatlab_lerobot.sim.scene import CellConfig, build_model
+from flatlab_lerobot.sim.scene import CellConfig, build_model, clutter_name
 
 ACTION_DIM = 16  # per arm: 7 joint targets (rad) + gripper width (m)
 LIFT_HEIGHT = 0.05  # success: lowest object point at least this far above the table (m)
@@ -40,34 +46,60 @@ class GraspStatus:
     success: bool
 
 
-class FlatLabSim:
-    """A compiled cell with one object, and everything needed to drive and judge it."""
+@dataclass
+class SimObject:
+    """One object of the cell and where it lives in the compiled model."""
 
-    def __init__(self, obj: ObjectSpec, cell: CellConfig | None = None, control_dt: float = 0.1):
-        self.obj = obj
+    obj: ObjectSpec
+    body: int
+    geoms: np.ndarray  # collision + visual geoms of a rigid object (empty for cloth)
+    free_qadr: int | None  # qpos address of a rigid object's free joint
+    flex_id: int = -1
+    vert_slice: slice | None = None  # cloth vertices in ``flexvert_xpos``
+    rest_xy: np.ndarray | None = None  # cloth: centred rest layout, for the yaw fit
+
+
+class FlatLabSim:
+    """A compiled cell with one object (plus optional rigid clutter), and everything needed to
+    drive and judge it.
+
+    ``clutter``: (ObjectSpec, (x, y, yaw)) pairs: further rigid objects (bodies
+    ``clutter<i>/object``, i = 1, 2, ...) placed at those poses by every :meth:`reset` (change
+    ``clutter_poses`` to move them); ``objects[0]`` is ``obj``, ``objects[i]`` clutter object i.
+    ``drop_bin``: add the bin in front of the usable edge that cleared objects fall into
+    (default: when there is clutter)."""
+
+    def __init__(
+        self,
+        obj: ObjectSpec,
+        cell: CellConfig | None = None,
+        control_dt: float = 0.1,
+        clutter: Sequence[tuple[ObjectSpec, Sequence[float]]] = (),
+        drop_bin: bool | None = None,
+    ):
         self.cell = cell or CellConfig()
-        self.model = build_model(self.cell, obj)
+        clutter = [(o, tuple(float(v) for v in pose)) for o, pose in clutter]
+        if clutter and obj.deformable:
+            raise ValueError(f"object {obj.id!r} is deformable: a cell with clutter holds rigid objects only")
+        if any(len(pose) != 3 for _, pose in clutter):
+            raise ValueError("every clutter pose must be (x, y, yaw)")
+        drop_bin = bool(clutter) if drop_bin is None else drop_bin
+        self.model = build_model(self.cell, obj, [o for o, _ in clutter], drop_bin)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.control_dt = control_dt
         self.n_substeps = max(1, int(round(control_dt / m.opt.timestep)))
         self.arms = {arm: ArmIndex.build(m, arm) for arm in ARMS}
         self.table_geom = m.geom("table_top").id
-        self.obj_body = m.body(OBJECT_BODY).id
-        if obj.deformable:
-            self.flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, "cloth")
-            adr, num = m.flex_vertadr[self.flex_id], m.flex_vertnum[self.flex_id]
-            self._vert_slice = slice(adr, adr + num)
-            d0 = mujoco.MjData(m)
-            mujoco.mj_forward(m, d0)  # flex vertex positions need the full position stage
-            rest = d0.flexvert_xpos[self._vert_slice][:, :2]
-            self._rest_xy = rest - rest.mean(axis=0)  # sheet-frame layout, for the yaw fit
-            self.obj_geoms = np.zeros(0, dtype=int)
-            self._free_qadr = None
-        else:
-            self.flex_id = -1
-            self.obj_geoms = np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] == self.obj_body])
-            self._free_qadr = m.jnt_qposadr[m.joint("object_free").id]
+        self.objects = [self._index_object(obj, OBJECT_BODY, "object_free")] + [
+            self._index_object(o, clutter_name(i), clutter_name(i, "object_free")) for i, (o, _) in enumerate(clutter, 1)
+        ]
+        self.clutter_poses = [pose for _, pose in clutter]
+        n = len(self.objects)
+        self._hold_refs: list[dict | None] = [None] * n  # per object: hold reference (see _update_hold)
+        self._time_held = np.zeros(n)
+        self.lifted = np.zeros(n, dtype=bool)  # per object: the hold rule was met since the last reset
+        self.set_target(0)
         self.finger_geoms = {
             arm: np.array([g for g in idx.geoms if m.body(m.geom_bodyid[g]).name.endswith("finger")])
             for arm, idx in self.arms.items()
@@ -78,12 +110,48 @@ class FlatLabSim:
         self.ik = DualArmIK(self.ik_model, self.ik_arms)
         self._ik_q = np.zeros(self.ik_model.nq)
         self._target = np.zeros(ACTION_DIM)
-        self._hold_ref: dict | None = None
-        self.time_held = 0.0
+
+    def _index_object(self, obj: ObjectSpec, body_name: str, joint_name: str) -> SimObject:
+        m = self.model
+        body = m.body(body_name).id
+        if not obj.deformable:
+            geoms = np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] == body])
+            return SimObject(obj, body, geoms, int(m.jnt_qposadr[m.joint(joint_name).id]))
+        flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, "cloth")
+        adr, num = m.flex_vertadr[flex_id], m.flex_vertnum[flex_id]
+        vs = slice(adr, adr + num)
+        d0 = mujoco.MjData(m)
+        mujoco.mj_forward(m, d0)  # flex vertex positions need the full position stage
+        rest = d0.flexvert_xpos[vs][:, :2]
+        # sheet-frame layout, for the yaw fit
+        return SimObject(obj, body, np.zeros(0, dtype=int), None, flex_id, vs, rest - rest.mean(axis=0))
+
+    def set_target(self, index: int) -> None:
+        """Make ``objects[index]`` the target: the object that ``obj``, ``object_pose``,
+        ``environment_state``, ``grasp_status``, ``is_success`` ... refer to."""
+        if not 0 <= index < len(self.objects):
+            raise IndexError(f"object index {index} out of range: the cell holds {len(self.objects)} objects")
+        o = self.objects[index]
+        self.target_index = index
+        self.obj, self.obj_body, self.obj_geoms, self._free_qadr = o.obj, o.body, o.geoms, o.free_qadr
+        self.flex_id, self._vert_slice, self._rest_xy = o.flex_id, o.vert_slice, o.rest_xy
+
+    def _obj(self, index: int | None) -> SimObject:
+        return self.objects[self.target_index if index is None else index]
+
+    @property
+    def time_held(self) -> float:
+        """Seconds the target has satisfied the hold rule without interruption."""
+        return float(self._time_held[self.target_index])
+
+    def _clear_holds(self) -> None:
+        self._hold_refs = [None] * len(self.objects)
+        self._time_held[:] = 0.0
 
     # ------------------------------------------------------------------ reset
     def reset(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0, settle: float = 0.3) -> None:
-        """Home both arms (grippers open), place the object at (x, y, yaw) on the table, settle."""
+        """Home both arms (grippers open), place the object at (x, y, yaw) on the table and the
+        clutter at ``clutter_poses``, settle.  The target becomes ``objects[0]``."""
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         for idx in self.arms.values():
@@ -91,28 +159,29 @@ class FlatLabSim:
             d.qpos[idx.finger_qpos] = GRIPPER_MAX_WIDTH / 2
         self._target = np.concatenate([np.r_[HOME_Q, GRIPPER_MAX_WIDTH]] * 2)
         d.ctrl[self._ctrl_ids()] = self._target
-        c, s = np.cos(yaw / 2), np.sin(yaw / 2)
-        if self._free_qadr is not None:
-            a = self._free_qadr
-            d.qpos[a : a + 3] = [x, y, m.body_pos[self.obj_body][2]]
-            d.qpos[a + 3 : a + 7] = [c, 0, 0, s]
-        else:
-            # Cloth vertices are slide-jointed to the object body: move the body itself.
-            m.body_pos[self.obj_body][:2] = [x, y]
-            m.body_quat[self.obj_body] = [c, 0, 0, s]
+        self.set_target(0)
+        for o, (px, py, pyaw) in zip(self.objects, [(x, y, yaw), *self.clutter_poses]):
+            c, s = np.cos(pyaw / 2), np.sin(pyaw / 2)
+            if o.free_qadr is not None:
+                a = o.free_qadr
+                d.qpos[a : a + 3] = [px, py, m.body_pos[o.body][2]]
+                d.qpos[a + 3 : a + 7] = [c, 0, 0, s]
+            else:
+                # Cloth vertices are slide-jointed to the object body: move the body itself.
+                m.body_pos[o.body][:2] = [px, py]
+                m.body_quat[o.body] = [c, 0, 0, s]
         # Sleeping islands (cloth scenes) would keep the old kinematics of bodies that start asleep:
         # compute the new placement with sleep off, then let things fall asleep again while settling.
         sleep = m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         mujoco.mj_forward(m, d)
         m.opt.enableflags |= sleep
-        self._hold_ref = None
-        self.time_held = 0.0
+        self._clear_holds()
         self.warning_counts = self._warning_counts()
         for _ in range(int(round(settle / self.control_dt))):
             self.step(self._target)
-        self._hold_ref = None
-        self.time_held = 0.0
+        self._clear_holds()
+        self.lifted[:] = False
 
     def _ctrl_ids(self) -> np.ndarray:
         return np.concatenate([self.arms[a].ctrl for a in ARMS])
@@ -164,34 +233,36 @@ class FlatLabSim:
         s = self.arms[arm].tcp_site
         return self.data.site_xpos[s].copy(), self.data.site_xmat[s].reshape(3, 3).copy()
 
-    def object_points(self) -> np.ndarray:
-        """World positions of the object's corners (rigid) or vertices (cloth), (K, 3)."""
-        d = self.data
-        if self.flex_id >= 0:
-            return d.flexvert_xpos[self._vert_slice].copy()
-        half = np.array(self.obj.size) / 2
+    def object_points(self, index: int | None = None) -> np.ndarray:
+        """World positions of the object's corners (rigid) or vertices (cloth), (K, 3).
+        ``index``: which of ``objects`` (default: the target); so for the other methods."""
+        d, o = self.data, self._obj(index)
+        if o.flex_id >= 0:
+            return d.flexvert_xpos[o.vert_slice].copy()
+        half = np.array(o.obj.size) / 2
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
-        R = d.xmat[self.obj_body].reshape(3, 3)
-        return d.xpos[self.obj_body] + corners @ R.T
+        R = d.xmat[o.body].reshape(3, 3)
+        return d.xpos[o.body] + corners @ R.T
 
-    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
+    def object_pose(self, index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(position (3,), quaternion wxyz (4,)).  For cloth: centroid and yaw of the principal axis."""
-        d = self.data
-        if self.flex_id < 0:
-            return d.xpos[self.obj_body].copy(), d.xquat[self.obj_body].copy()
-        pts = self.object_points()
+        d, o = self.data, self._obj(index)
+        if o.flex_id < 0:
+            return d.xpos[o.body].copy(), d.xquat[o.body].copy()
+        pts = self.object_points(index)
         c = pts.mean(axis=0)
         # yaw: best 2-D rotation of the rest layout onto the current vertices (Procrustes)
-        H = self._rest_xy.T @ (pts[:, :2] - c[:2])
+        H = o.rest_xy.T @ (pts[:, :2] - c[:2])
         yaw = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
         return c, np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])
 
-    def object_extent(self) -> np.ndarray:
+    def object_extent(self, index: int | None = None) -> np.ndarray:
         """Current size of the object along its own axes (rigid: the spec; cloth: measured)."""
-        if self.flex_id < 0:
-            return np.array(self.obj.size, dtype=float)
-        pts = self.object_points()
-        pos, quat = self.object_pose()
+        o = self._obj(index)
+        if o.flex_id < 0:
+            return np.array(o.obj.size, dtype=float)
+        pts = self.object_points(index)
+        pos, quat = self.object_pose(index)
         yaw = 2 * np.arctan2(quat[3], quat[0])
         R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
         local = (pts[:, :2] - pos[:2]) @ R
@@ -204,76 +275,93 @@ class FlatLabSim:
             return np.zeros((0, 2), int), np.zeros((0, 2), int)
         return d.contact.geom[:n], d.contact.flex[:n]
 
-    def _is_object(self, geom: np.ndarray, flex: np.ndarray) -> np.ndarray:
-        if self.flex_id >= 0:
-            return flex == self.flex_id
-        return np.isin(geom, self.obj_geoms)
+    def _is_object(self, geom: np.ndarray, flex: np.ndarray, index: int | None = None) -> np.ndarray:
+        o = self._obj(index)
+        if o.flex_id >= 0:
+            return flex == o.flex_id
+        return np.isin(geom, o.geoms)
 
-    def object_contacts(self, geoms: np.ndarray) -> bool:
+    def object_contacts(self, geoms: np.ndarray, index: int | None = None) -> bool:
         """Does the object touch any of ``geoms``?"""
         g, f = self._contact_pairs()
         if len(g) == 0:
             return False
-        obj = self._is_object(g, f)
+        obj = self._is_object(g, f, index)
         other = np.isin(g, geoms)
         return bool(np.any(obj[:, 0] & other[:, 1]) or np.any(obj[:, 1] & other[:, 0]))
 
-    def holding_arms(self) -> tuple[str, ...]:
-        return tuple(a for a in ARMS if self.object_contacts(self.finger_geoms[a]))
+    def holding_arms(self, index: int | None = None) -> tuple[str, ...]:
+        return tuple(a for a in ARMS if self.object_contacts(self.finger_geoms[a], index))
 
-    def _object_in_hand(self, arm: str, ref_vertex: int | None) -> np.ndarray:
+    def _object_in_hand(self, arm: str, ref_vertex: int | None, index: int | None = None) -> np.ndarray:
         hp, hR = self.tcp_pose(arm)
-        if self.flex_id >= 0:
-            p = self.data.flexvert_xpos[self._vert_slice][ref_vertex]
+        o = self._obj(index)
+        if o.flex_id >= 0:
+            p = self.data.flexvert_xpos[o.vert_slice][ref_vertex]
             return hR.T @ (p - hp)
         # Rigid: object origin and one corner, in the hand frame (catches rotation too).
-        pts = np.vstack([self.data.xpos[self.obj_body], self.object_points()[7]])
+        pts = np.vstack([self.data.xpos[o.body], self.object_points(index)[7]])
         return (pts - hp) @ hR
 
     # ------------------------------------------------------------------ success
     def _update_hold(self) -> None:
-        st = self.grasp_status()
-        ok = st.clearance >= LIFT_HEIGHT and not st.table_contact and st.holding_arms
-        if not ok:
-            self._hold_ref, self.time_held = None, 0.0
-            return
-        if self._hold_ref is None or set(self._hold_ref) != set(st.holding_arms):
-            ref = {}
-            for a in st.holding_arms:
-                vert = None
-                if self.flex_id >= 0:
-                    hp, _ = self.tcp_pose(a)
-                    vert = int(np.argmin(np.linalg.norm(self.object_points() - hp, axis=1)))
-                ref[a] = (vert, self._object_in_hand(a, vert))
-            self._hold_ref, self.time_held = ref, 0.0
-            return
-        if st.slip >= MAX_SLIP:
-            self._hold_ref, self.time_held = None, 0.0
-            return
-        self.time_held += self.control_dt
+        for i in range(len(self.objects)):
+            self._update_hold_of(i)
 
-    def _slip(self) -> float:
-        if not self._hold_ref:
+    def _update_hold_of(self, i: int) -> None:
+        """Advance object ``i``'s hold timer (the success rule) by one control step."""
+        holding = self.holding_arms(i)
+        if not holding:  # cheapest test first: most objects are not in a hand
+            self._hold_refs[i], self._time_held[i] = None, 0.0
+            return
+        clearance = float(self.object_points(i)[:, 2].min() - self.cell.table_height)
+        if clearance < LIFT_HEIGHT or self.object_contacts(np.array([self.table_geom]), i):
+            self._hold_refs[i], self._time_held[i] = None, 0.0
+            return
+        ref0 = self._hold_refs[i]
+        if ref0 is None or set(ref0) != set(holding):
+            ref = {}
+            for a in holding:
+                vert = None
+                if self._obj(i).flex_id >= 0:
+                    hp, _ = self.tcp_pose(a)
+                    vert = int(np.argmin(np.linalg.norm(self.object_points(i) - hp, axis=1)))
+                ref[a] = (vert, self._object_in_hand(a, vert, i))
+            self._hold_refs[i], self._time_held[i] = ref, 0.0
+            return
+        if self._slip(i) >= MAX_SLIP:
+            self._hold_refs[i], self._time_held[i] = None, 0.0
+            return
+        self._time_held[i] += self.control_dt
+        if self._time_held[i] >= HOLD_TIME - 1e-9:
+            self.lifted[i] = True
+
+    def _slip(self, index: int | None = None) -> float:
+        i = self.target_index if index is None else index
+        if not self._hold_refs[i]:
             return 0.0
         return max(
-            float(np.max(np.linalg.norm(self._object_in_hand(a, v) - p0, axis=-1)))
-            for a, (v, p0) in self._hold_ref.items()
+            float(np.max(np.linalg.norm(self._object_in_hand(a, v, i) - p0, axis=-1)))
+            for a, (v, p0) in self._hold_refs[i].items()
         )
 
-    def grasp_status(self) -> GraspStatus:
-        clearance = float(self.object_points()[:, 2].min() - self.cell.table_height)
-        held = self.time_held
+    def grasp_status(self, index: int | None = None) -> GraspStatus:
+        i = self.target_index if index is None else index
+        clearance = float(self.object_points(i)[:, 2].min() - self.cell.table_height)
+        held = float(self._time_held[i])
         return GraspStatus(
             clearance=clearance,
-            table_contact=self.object_contacts(np.array([self.table_geom])),
-            holding_arms=self.holding_arms(),
-            slip=self._slip(),
+            table_contact=self.object_contacts(np.array([self.table_geom]), i),
+            holding_arms=self.holding_arms(i),
+            slip=self._slip(i),
             held_for=held,
             success=held >= HOLD_TIME - 1e-9,
         )
 
-    def is_success(self) -> bool:
-        return self.time_held >= HOLD_TIME - 1e-9
+    def is_success(self, index: int | None = None) -> bool:
+        """The success rule holds now for the target (or ``objects[index]``)."""
+        i = self.target_index if index is None else index
+        return bool(self._time_held[i] >= HOLD_TIME - 1e-9)
 
     def environment_state(self) -> np.ndarray:
         """Privileged state (14,): object pose (pos, quat wxyz), size, deformable flag, table

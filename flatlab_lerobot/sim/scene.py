@@ -13,10 +13,17 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.assets import object_xml
+from flatlab_lerobot.assets import OBJECT_BODY, object_xml
 from flatlab_lerobot.catalog import ObjectSpec
 from flatlab_lerobot.sim.robot import ARMS, BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, attach_arm
-
+from flatlab_lerobot.sim.room import (
+    ARM_CLEARANCE,
+    ARM_EDGE_REACH,
+    ARM_MAX_Y,
+    apply_textures,
+    dressing,
+    room_textures,
+)
 
 
 @dataclass(frozen=True)
@@ -45,10 +52,20 @@ class CellConfig:
 
     table_height: height of the table top above the floor (m).  table_size: (depth along x,
     width along y) of the top (m).  table_thickness: slab thickness (m).  table_friction:
-    sliding friction of the top.  table_rgba: colour.  arm_base_y: |y| of the arm bases;
-    arm_base_x: x of both bases; arm_base_drop: how far the bases sit below the table top (m),
+    sliding friction of the top.  table_rgba: colour.  arm_base_y: |y| of the arm bases (default:
+    table half-width + ARM_CLEARANCE = 0.2 m, at most ARM_MAX_Y = 0.65 m as in the default cell; on
+    1 m wide tables 0.7 m cost strategy A reach: 24/40 lifts vs 35/40 at 0.65 m).  arm_base_x: x of
+    both bases (default: 0, on tables deeper than 0.6 m ARM_EDGE_REACH = 0.3 m behind the usable
+    edge, so A still reaches it).  arm_base_drop: how far the bases sit below the table top (m),
     which lets a hand reach the table edge horizontally (measured with IK, see robot.py).  cameras: the named cameras (default: front, top, left, right).
     rigid_timestep / cloth_timestep: physics step for scenes without / with a cloth (s).
+
+    Scene dressing (``flatlab_lerobot.catalog.cell_config_for_scene`` fills these from
+    ``envs/scenes``; the defaults give the plain cell): edge: front-edge profile (square | rounded |
+    bevelled, see ``sim/room.py``); table_rgba2 / table_pattern: second colour and pattern (flat |
+    checker | grain) of the top; room: room category ('' = no side walls, no room floor); wall_rgba /
+    floor_rgba (None = grey checker floor); props: names of visual-only props (``sim.room.PROPS``);
+    scene_id: the scene's id (for messages).
     """
 
     table_height: float = 0.75
@@ -56,13 +73,28 @@ class CellConfig:
     table_thickness: float = 0.04
     table_friction: float = 0.3
     table_rgba: tuple[float, float, float, float] = (0.62, 0.5, 0.38, 1.0)
-    arm_base_x: float = 0.0
-    arm_base_y: float = 0.65
+    arm_base_x: float | None = None
+    arm_base_y: float | None = None
     arm_base_drop: float = 0.15
     cameras: tuple[CameraSpec, ...] | None = None
     rigid_timestep: float = 0.002
     cloth_timestep: float = 0.004
     extra: dict = field(default_factory=dict)
+    edge: str = "square"
+    table_rgba2: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    table_pattern: str = "flat"
+    room: str = ""
+    wall_rgba: tuple[float, float, float, float] = (0.85, 0.84, 0.8, 1.0)
+    floor_rgba: tuple[float, float, float, float] | None = None
+    props: tuple[str, ...] = ()
+    scene_id: str = ""
+
+    def __post_init__(self):
+        if self.arm_base_y is None:
+            self.arm_base_y = min(self.table_size[1] / 2 + ARM_CLEARANCE, ARM_MAX_Y)
+        if self.arm_base_x is None:
+            self.arm_base_x = max(0.0, self.table_size[0] / 2 - ARM_EDGE_REACH)
+        self.props = tuple(self.props)
 
     @property
     def edge_x(self) -> float:
@@ -103,6 +135,8 @@ def scene_xml(cell: CellConfig, obj: ObjectSpec | None) -> str:
         option = f'<option timestep="{cell.rigid_timestep}" integrator="implicitfast" cone="elliptic" impratio="10"/>'
     h, (tx, ty), tt = cell.table_height, cell.table_size, cell.table_thickness
     table_mask = f'contype="{BIT_TABLE}" conaffinity="{BIT_OBJECT | BIT_LEFT | BIT_RIGHT}"'
+    room = dressing(cell, table_mask)  # floor, walls, table top + edge, material textures, props (sim/room.py)
+    props = f"\n{room.props}" if room.props else ""
     legs = "\n".join(
         f'      <geom type="box" size="0.025 0.025 {(h - tt) / 2:.6g}" pos="{sx * (tx / 2 - 0.05):.6g} {sy * (ty / 2 - 0.05):.6g} {(h - tt) / 2:.6g}" material="table_leg" contype="0" conaffinity="0"/>'
         for sx in (-1, 1)
@@ -128,36 +162,82 @@ def scene_xml(cell: CellConfig, obj: ObjectSpec | None) -> str:
     <headlight ambient="0.45 0.45 0.45" diffuse="0.5 0.5 0.5" specular="0.05 0.05 0.05"/>
   </visual>
   <asset>
-    <texture name="floor_tex" type="2d" builtin="checker" rgb1="0.55 0.55 0.58" rgb2="0.45 0.45 0.48" width="256" height="256"/>
-    <material name="floor" texture="floor_tex" texrepeat="6 6"/>
-    <material name="table_top" rgba="{_fmt(cell.table_rgba)}"/>
-    <material name="table_leg" rgba="0.3 0.3 0.32 1"/>
-    <material name="wall" rgba="0.85 0.84 0.8 1"/>
+    {room.assets}
   </asset>
   <worldbody>
     <light name="sun" pos="0.5 0 2.6" dir="-0.2 0 -1" diffuse="0.5 0.5 0.5" castshadow="false"/>
-    <geom name="floor" type="plane" size="3 3 0.1" material="floor" contype="0" conaffinity="0"/>
-    <geom name="wall_back" type="box" size="0.02 2.5 1.3" pos="-1.6 0 1.3" material="wall" contype="0" conaffinity="0"/>
+{room.floor_walls}
     <body name="table">
-      <geom name="table_top" type="box" size="{tx / 2:.6g} {ty / 2:.6g} {tt / 2:.6g}" pos="0 0 {h - tt / 2:.6g}" material="table_top"
-            friction="{cell.table_friction:.6g} 0.005 0.0001" condim="4" {table_mask}/>
+{room.table}
 {legs}
     </body>
 {pedestals}
-{cams}
+{cams}{props}
 {obj_xml}
   </worldbody>
 </mujoco>"""
 
 
-def build_spec(cell: CellConfig, obj: ObjectSpec | None) -> mujoco.MjSpec:
+CLUTTER_PREFIX = "clutter"
+
+
+def clutter_name(i: int, name: str = OBJECT_BODY) -> str:
+    """Name of element ``name`` (body ``object``, joint ``object_free``, geom ``object_geom``...) of
+    clutter object ``i`` (1, 2, ...): ``clutter<i>/<name>``."""
+    return f"{CLUTTER_PREFIX}{i}/{name}"
+
+
+def add_clutter(spec: mujoco.MjSpec, cell: CellConfig, clutter) -> None:
+    """Add rigid ``clutter`` objects (ObjectSpecs) next to the main one: each is the object's own
+    MJCF body (same collision bits) attached under the prefix ``clutter<i>/``, resting at the
+    table centre until the sim places it."""
+    for i, o in enumerate(clutter, start=1):
+        if o.deformable:
+            raise ValueError(f"clutter object {o.id!r} is deformable; clutter objects must be rigid")
+        sub = mujoco.MjSpec.from_string(
+            f'<mujoco><compiler angle="radian"/><worldbody>{object_xml(o, cell.table_height)}</worldbody></mujoco>'
+        )
+        spec.worldbody.add_frame().attach_body(sub.body(OBJECT_BODY), f"{CLUTTER_PREFIX}{i}/", "")
+
+
+BIN_DEPTH = 0.6  # m along x, in front of the usable edge
+BIN_WALL = 0.22  # wall height above the floor (m)
+
+
+def add_drop_bin(spec: mujoco.MjSpec, cell: CellConfig) -> None:
+    """An open bin on the floor in front of the usable edge (x from the edge to edge + BIN_DEPTH,
+    as wide as the table): objects carried past the edge and released fall into it.  It collides
+    with objects only (contype 0, conaffinity BIT_OBJECT), never with the arms; its floor is a
+    10 cm slab so falling thin objects cannot tunnel through."""
+    x0, hy, t = cell.edge_x, cell.table_size[1] / 2 + 0.05, 0.02
+    body = spec.worldbody.add_body(name="drop_bin")
+    box = mujoco.mjtGeom.mjGEOM_BOX
+    parts = {
+        "bottom": ([BIN_DEPTH / 2, hy, 0.05], [x0 + BIN_DEPTH / 2, 0.0, -0.03]),
+        "near": ([t / 2, hy, BIN_WALL / 2], [x0 - t / 2, 0.0, BIN_WALL / 2]),
+        "far": ([t / 2, hy, BIN_WALL / 2], [x0 + BIN_DEPTH + t / 2, 0.0, BIN_WALL / 2]),
+        "side_l": ([BIN_DEPTH / 2, t / 2, BIN_WALL / 2], [x0 + BIN_DEPTH / 2, hy + t / 2, BIN_WALL / 2]),
+        "side_r": ([BIN_DEPTH / 2, t / 2, BIN_WALL / 2], [x0 + BIN_DEPTH / 2, -hy - t / 2, BIN_WALL / 2]),
+    }
+    for name, (size, pos) in parts.items():
+        body.add_geom(name=f"drop_bin_{name}", type=box, size=size, pos=pos, rgba=[0.22, 0.32, 0.42, 1.0],
+                      contype=0, conaffinity=BIT_OBJECT)  # fmt: skip
+
+
+def build_spec(cell: CellConfig, obj: ObjectSpec | None, clutter=(), drop_bin: bool = False) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_string(scene_xml(cell, obj))
+    apply_textures(spec, room_textures(cell))
     for arm, s in zip(ARMS, (1, -1)):
         base = (cell.arm_base_x, s * cell.arm_base_y, cell.table_height - cell.arm_base_drop)
         attach_arm(spec, arm, base, yaw=-s * np.pi / 2)
+    if clutter:
+        add_clutter(spec, cell, clutter)
+    if drop_bin:
+        add_drop_bin(spec, cell)
     return spec
 
 
-def build_model(cell: CellConfig, obj: ObjectSpec | None) -> mujoco.MjModel:
-    """Compile the cell with ``obj`` (or with no object, e.g. for a kinematic IK model)."""
-    return build_spec(cell, obj).compile()
+def build_model(cell: CellConfig, obj: ObjectSpec | None, clutter=(), drop_bin: bool = False) -> mujoco.MjModel:
+    """Compile the cell with ``obj`` (or with no object, e.g. for a kinematic IK model) and, for a
+    cluttered desk, the rigid ``clutter`` objects (:func:`add_clutter`) and the drop bin."""
+    return build_spec(cell, obj, clutter, drop_bin).compile()
