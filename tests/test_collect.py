@@ -114,6 +114,10 @@ def test_shipped_recipes_load():
         ({"randomization": {"xy_range": -1}}, "randomization.xy_range"),
         ({"strategy": "D"}, "strategy"),
         ({"episodes": None}, "episodes"),
+        ({"workers": 0}, "workers"),
+        ({"video": {"preset": "warp"}}, "video.preset"),
+        ({"video": {"depth_preset": 3}}, "video.depth_preset"),
+        ({"video": {"vcodec": "libsvtav1", "preset": "fast"}}, "video.preset"),
     ],
 )
 def test_malformed_recipe_names_file_and_field(tmp_path, over, field):
@@ -135,6 +139,24 @@ def test_missing_field_and_bad_yaml(tmp_path):
     q.write_text("name: [unclosed\n")
     with pytest.raises(RecipeError, match=r"broken\.yaml: invalid YAML"):
         load_recipe(q)
+
+
+def test_workers_and_commit_size_do_not_change_the_fingerprint():
+    import dataclasses
+
+    r = recipe_from_dict(TINY, "t.yaml")
+    assert r.workers == 1
+    assert dataclasses.replace(r, workers=4, commit_every=7).fingerprint() == r.fingerprint()
+    fast = recipe_from_dict({**TINY, "video": {"preset": "veryfast", "depth_preset": "ultrafast"}}, "t.yaml")
+    assert fast.video.preset == "veryfast" and fast.fingerprint() != r.fingerprint()
+
+
+def test_cli_rejects_bad_worker_count(tmp_path, capsys):
+    from flatlab_lerobot.collect.collector import main
+
+    p = write_recipe(tmp_path / "t.yaml")
+    assert main(["--recipe", str(p), "--out", str(tmp_path), "--workers", "0"]) == 2
+    assert "--workers" in capsys.readouterr().err and not (tmp_path / "t").exists()
 
 
 def test_cli_reports_recipe_error(tmp_path):
@@ -214,6 +236,81 @@ def test_same_recipe_and_seed_give_identical_data(tiny, tmp_path):
     recipe, root, _ = tiny
     collect(recipe, tmp_path, progress=False)
     assert_same_nonvideo(root, tmp_path / "t")
+
+
+def test_two_workers_give_the_same_dataset(tiny, tmp_path):
+    """Episodes simulated (and encoded) by a 2-process pool are added in index order: the data,
+    lerobot's stats and the decoded depth equal the in-process run exactly.  (RGB is lossy h264,
+    whose bitstream is not reproducible run to run here even from identical frames -- a few
+    macroblocks can come out differently -- so decoded RGB is compared with a tolerance.)"""
+    from flatlab_lerobot.collect.collector import with_overrides
+
+    recipe, root, _ = tiny
+    s = collect(with_overrides(recipe, workers=2), tmp_path, progress=False)
+    other = tmp_path / "t"
+    assert s["workers"] == 2 and len(s["worker_peak_rss_mb"]) >= 1
+    assert all(0 < v < 2048 for v in s["worker_peak_rss_mb"].values())
+    assert_same_nonvideo(root, other)
+    assert (other / "meta" / "stats.json").read_text() == (root / "meta" / "stats.json").read_text()
+    strip = lambda p: [{k: v for k, v in json.loads(x).items() if k != "wall_time_s"}
+                       for x in (p / EPISODES_JSONL).read_text().splitlines()]  # fmt: skip
+    assert strip(other) == strip(root)
+    a, b = load_ds(root), load_ds(other)
+    assert len(a) == len(b) and sorted(a.meta.video_keys) == sorted(b.meta.video_keys)
+    for i in range(len(a)):
+        xa, xb = a[i], b[i]
+        for k in a.meta.video_keys:
+            if k.startswith("observation.depth."):
+                np.testing.assert_array_equal(xa[k].numpy(), xb[k].numpy(), err_msg=k)
+            else:
+                assert float((xa[k] - xb[k]).abs().mean()) < 0.02, k
+    assert not (tmp_path / ".t.work").exists()
+
+
+def test_depth_quantiser_matches_lerobot():
+    from lerobot.datasets.depth_utils import quantize_depth as lerobot_quantize
+
+    from flatlab_lerobot.collect.writer import quantize_depth, stream_specs
+
+    spec = stream_specs(recipe_from_dict(TINY, "t.yaml"))["observation.depth.front"]
+    rng = np.random.default_rng(0)
+    depth = np.concatenate([[0.0, 0.01, 0.3, 1.0, 9.99, 10.0, 80.0], rng.uniform(0.0, 12.0, 5100)]).astype(np.float32)
+    depth = depth[: 71 * 71].reshape(71, 71, 1)
+    ours = quantize_depth(depth, spec)
+    theirs = lerobot_quantize(depth, depth_min=spec.depth_min, depth_max=spec.depth_max, shift=spec.shift,
+                              use_log=spec.use_log, pix_fmt=spec.pix_fmt, video_backend=None)  # fmt: skip
+    assert ours.dtype == np.uint16 and ours.shape == (71, 71) and ours.max() <= spec.qmax
+    np.testing.assert_array_equal(ours, theirs)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_video_stats_are_exact_and_in_lerobot_layout(dtype):
+    from lerobot.datasets.compute_stats import get_feature_stats
+
+    from flatlab_lerobot.collect.writer import STATS_QUANTILES, image_stats
+
+    rng = np.random.default_rng(1)
+    if dtype == np.uint8:
+        frames = rng.integers(0, 256, (7, 20, 24, 3)).astype(np.uint8)
+        frames[..., 1] //= 3  # channels with different spreads
+    else:
+        frames = rng.lognormal(0.0, 0.5, (7, 20, 24, 1)).astype(np.float32)
+    st = image_stats(frames)
+    x = frames.reshape(-1, frames.shape[-1]).astype(np.float64)
+    np.testing.assert_allclose(st["mean"], x.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(st["std"], x.std(0), rtol=1e-9)
+    np.testing.assert_array_equal(st["min"], x.min(0))
+    np.testing.assert_array_equal(st["max"], x.max(0))
+    for q in STATS_QUANTILES:
+        np.testing.assert_allclose(st[f"q{round(q * 100):02d}"], np.quantile(x, q, axis=0), rtol=1e-6)
+    assert st["count"].tolist() == [7]
+    # the keys and per-channel shapes lerobot computes itself (its values are histogram estimates)
+    ref = get_feature_stats(np.moveaxis(frames, -1, 1), axis=(0, 2, 3), keepdims=True)
+    assert set(st) == set(ref)
+    for k in ref:
+        if k != "count":
+            assert st[k].shape == ref[k].squeeze(0).reshape(-1).shape
+            np.testing.assert_allclose(st[k], ref[k].reshape(-1), rtol=0.05, atol=2.0 if dtype == np.uint8 else 0.05)
 
 
 def test_rerun_is_a_noop_and_extends(tiny, tmp_path):
@@ -323,6 +420,72 @@ def test_kill_and_resume(tiny, tmp_path):
     for col in ("observation.state", "action", "observation.pointcloud"):
         np.testing.assert_array_equal(np.stack(part[col].tolist()), np.stack(full[col].tolist()), err_msg=col)
     assert not any(p.name.startswith(".t.") for p in out.iterdir())
+
+
+@pytest.mark.slow
+def test_kill_parent_with_workers_then_resume(tiny, tmp_path):
+    """kill -9 only the writer process of a 2-worker run: its workers notice and exit, and the
+    re-run (1 worker) completes a dataset equal to the reference run."""
+    import psutil
+
+    _, ref_root, _ = tiny
+    p = write_recipe(tmp_path / "t.yaml", episodes=3, commit_every=1)
+    out = tmp_path / "out"
+    cmd = [PY, "-m", "flatlab_lerobot.collect", "--recipe", str(p), "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen([*cmd, "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)  # fmt: skip
+    recs = out / "t" / EPISODES_JSONL
+    children = []
+    try:
+        t0 = time.time()
+        while time.time() - t0 < 120:
+            children = children or [c for c in psutil.Process(proc.pid).children() if "python" in c.name().lower()]
+            if recs.is_file() and recs.read_text().count("\n") >= 1:
+                break
+            assert proc.poll() is None, "collector exited early"
+            time.sleep(0.05)
+        else:
+            pytest.fail("no episode committed within 120 s")
+        children = children or psutil.Process(proc.pid).children()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        assert children, "no worker processes seen"
+        _, alive = psutil.wait_procs(children, timeout=15)
+        assert not alive, f"orphaned workers: {alive}"
+    finally:
+        with __import__("contextlib").suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    r = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert load_ds(out / "t").num_episodes == 3
+    full, part = table(ref_root), table(out / "t")
+    part = part[part.episode_index < 2].reset_index(drop=True)
+    for col in ("observation.state", "action", "observation.pointcloud"):
+        np.testing.assert_array_equal(np.stack(part[col].tolist()), np.stack(full[col].tolist()), err_msg=col)
+    assert not any(q.name.startswith(".t.") for q in out.iterdir())
+
+
+# ------------------------------------------------------------------------------------ benchmark
+def test_bench_collect_writes_its_numbers(tmp_path):
+    from flatlab_lerobot.cli import main
+
+    p = write_recipe(tmp_path / "b.yaml", episodes=3, max_steps=8)
+    out = tmp_path / "bench.json"
+    assert main(["bench-collect", "--recipe", str(p), "--episodes", "1", "--workers", "1", "--profile",
+                 "--json", str(out)]) == 0  # fmt: skip
+    res = json.loads(out.read_text())
+    assert res["episodes"] == 1 and res["workers"] == 1 and len(res["loadavg_before"]) == 3
+    c, r = res["collection"], res["raw"]
+    assert c["frames"] == 8 and r["episodes"] == 1 and r["steps"] == 8
+    for v in (c["wall_s"], c["episodes_per_hour"], c["cpu_s_per_episode"], c["episodes_per_hour_cpu_bound"],
+              r["wall_s"], r["episodes_per_hour"], r["cpu_s_per_episode"], res["overhead_ratio"],
+              res["overhead_ratio_cpu"], res["peak_rss_mb"]["writer"], res["peak_rss_mb"]["worker_max"],
+              c["cpu_share"], r["cpu_share"], c["loadavg_during"] + 0.01):
+        assert isinstance(v, (int, float)) and v > 0
+    prof = res["profile"]["seconds"]
+    assert prof["episode (run_episode)"] > 0 and prof["  physics (FlatLabSim.step)"] > 0
+    assert prof["    render passes (CameraRig._render)"] > 0 and prof["video encoding (writer.encode_stream)"] > 0
+    assert prof["  lerobot save_episode"] > 0
 
 
 # ------------------------------------------------------------------------------------ lerobot CLIs

@@ -2,8 +2,9 @@
 
 * :mod:`.recipe`: the typed YAML recipe (:func:`load_recipe`, :class:`RecipeError`),
 * :mod:`.runner`: one expert episode -> labelled LeRobot frames,
-* :mod:`.writer`: LeRobotDataset v3 features, crash-safe commits, camera meta, dataset card,
-* :mod:`.collector`: the resumable loop and the CLI entry point :func:`main`.
+* :mod:`.writer`: LeRobotDataset v3 features, video encoding (in the workers), crash-safe commits,
+  camera meta, dataset card,
+* :mod:`.collector`: the worker pool, the in-order resumable loop and the CLI entry point :func:`main`.
 """
 
 import os

@@ -13,6 +13,7 @@ which episodes ran before it in the same process (required for crash/resume).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -41,6 +42,10 @@ class EpisodeResult:
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     stages: list[str] = field(default_factory=list)
+    # feature -> (MP4 path, stats) once a worker has encoded the camera streams (writer.encode_videos);
+    # the frames then no longer hold those arrays.
+    videos: dict | None = None
+    timing: dict = field(default_factory=dict)  # seconds: build, reset, loop (expert + step + frames), encode
 
     def record(self) -> dict:
         return {
@@ -66,8 +71,13 @@ def sample_placement(recipe: Recipe, seed: int) -> tuple[float, float, float]:
     return ResetDistribution(r.xy_range, r.yaw_range_deg).sample(seed)
 
 
+@functools.cache
+def _catalog_strategy(object_id: str) -> str:
+    return get_object(object_id).strategy  # parses the whole catalog: once per process
+
+
 def strategy_for(recipe: Recipe, object_id: str) -> str:
-    return get_object(object_id).strategy if recipe.strategy == "auto" else recipe.strategy
+    return _catalog_strategy(object_id) if recipe.strategy == "auto" else recipe.strategy
 
 
 def make_env(recipe: Recipe, object_id: str):
@@ -150,10 +160,13 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
     frames: list[dict] = []
     reason = ""
     info: dict = {}
+    t_reset = t_loop = t0
     try:
         if own_env:
             env = make_env(recipe, object_id)
+        t_reset = time.perf_counter()
         obs, info = env.reset(seed=seed, options={"placement": placement})
+        t_loop = time.perf_counter()
         expert = Expert(env.cell, recipe.control_dt)
         holder = {"obs": obs}
         gen = expert.episode(strategy, lambda: (holder["obs"]["agent_pos"], holder["obs"]["environment_state"]))
@@ -173,6 +186,8 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
         reason = f"simulation diverged: {exc}"
     except Exception as exc:  # noqa: BLE001 -- expert/IK/rendering errors: keep the demo, label it
         reason = f"error: {type(exc).__name__}: {exc}"
+    t_end = time.perf_counter()
+    res.timing = {"build": t_reset - t0, "reset": max(0.0, t_loop - t_reset), "loop": max(0.0, t_end - t_loop)}
     success = bool(info.get("is_success", False)) and not reason
     if not success and not reason:
         try:
