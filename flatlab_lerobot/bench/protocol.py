@@ -218,7 +218,7 @@ class Evaluator:
         amp = torch.autocast(device_type=self.device.type) if self.cfg.use_amp else nullcontext()
         try:
             for t in trials:
-                if self.spec.get("parent_pid") and os.getppid() != self.spec["parent_pid"]:
+                if self.spec.get("parent_pid") and not _alive(self.spec["parent_pid"]):
                     os._exit(0)  # a worker whose parent was killed: stop now, not run on as an orphan
                 seed = self.spec["seed"] + t
                 t0 = time.perf_counter()
@@ -281,6 +281,17 @@ def _quiet_lerobot_bars() -> None:
         return trange(*args, **{**kwargs, "disable": True})
 
     lerobot_eval.trange = quiet_trange
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still exists (the caller; a forkserver worker's own parent is the server)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _die_with_parent() -> None:
@@ -627,14 +638,13 @@ def _run_in_process(spec: dict, jobs: list[dict]):
 
 
 def _run_workers(spec: dict, jobs: list[dict], n: int, threads: int | None = None):
-    """Start ``n`` forked worker processes on ``jobs`` (whole objects) and return a generator of
-    their trial records as they arrive.  Closing it (budget reached, error, interrupt) kills them."""
-    import importlib
+    """Start ``n`` worker processes on ``jobs`` (whole objects) and return a generator of
+    their trial records as they arrive.  Closing it (budget reached, error, interrupt) kills them.
 
-    for name in ("lerobot.envs", "lerobot.policies", "lerobot.scripts.lerobot_eval"):
-        importlib.import_module(name)  # imported once here, inherited by the forked workers
-
-    ctx = mp.get_context("fork")
+    Workers are *spawned* (fresh interpreters, each imports lerobot once, a few seconds):
+    forking the caller itself deadlocked when it had already run torch / GL threads (seen in
+    the test suite: a forked child stuck on a futex forever)."""
+    ctx = mp.get_context("spawn")
     job_q, res_q = ctx.Queue(), ctx.Queue()
     for job in jobs:
         job_q.put(job)
@@ -645,7 +655,8 @@ def _run_workers(spec: dict, jobs: list[dict], n: int, threads: int | None = Non
     for p in procs:
         p.start()
 
-    def results():
+    def results(_keep=(job_q, res_q)):  # the queues live as long as the generator: a spawned child
+        # rebuilds their semaphores by name, and a collected Queue unlinks them (FileNotFoundError)
         objects_left = len(jobs)
         try:
             while objects_left > 0:
