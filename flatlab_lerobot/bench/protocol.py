@@ -686,6 +686,9 @@ def _run_workers(spec: dict, jobs: list[dict], n: int, threads: int | None = Non
                 if p.is_alive():
                     p.kill()
                     p.join()
+            for q in _keep:  # release their semaphores now (else: "leaked semaphore" warnings at exit)
+                q.close()
+                q.cancel_join_thread()
 
     return results()
 
