@@ -35,6 +35,16 @@ from flatlab_lerobot.catalog import (
 PREVIEW_TABLE_HEIGHT = 0.1
 
 
+def _label_font(size: int):
+    """Pillow's default font at ``size`` (older Pillow: the fixed-size bitmap font)."""
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1
+        return ImageFont.load_default()
+
+
 def list_objects(split: str | None = None, category: str | None = None) -> list[str]:
     """One formatted line per object (optionally filtered), header first."""
     objs = [o for o in load_objects().values()
@@ -138,7 +148,7 @@ def render_object(obj: ObjectSpec, size: int = 256, settle_steps: int = 0):
 def contact_sheet(out_png: str | Path, cols: int = 10, tile: int = 200, include_reference: bool = False,
                   objects: list[ObjectSpec] | None = None) -> Path:
     """Render every catalog object into one labelled grid PNG; returns its path."""
-    from PIL import Image, ImageDraw, ImageFont
+    from PIL import Image, ImageDraw
 
     if objects is None:
         order = {s: i for i, s in enumerate((*BENCHMARK_SPLITS, "reference"))}
@@ -148,10 +158,7 @@ def contact_sheet(out_png: str | Path, cols: int = 10, tile: int = 200, include_
     label_h = 30
     sheet = Image.new("RGB", (cols * tile, rows * (tile + label_h)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
-    try:
-        font = ImageFont.load_default(size=11)
-    except TypeError:  # Pillow < 10.1
-        font = ImageFont.load_default()
+    font = _label_font(11)
     colours = {"train": (30, 110, 30), "test_alpha": (20, 70, 170), "test_beta": (170, 60, 20), "reference": (90, 90, 90)}
     for k, o in enumerate(objects):
         img = Image.fromarray(render_object(o, tile, settle_steps=50 if o.deformable else 0))
@@ -228,7 +235,7 @@ def scene_sheet(out_png: str | Path, cols: int = 6, tile: tuple[int, int] = (360
                 scene_ids: list[str] | None = None) -> Path:
     """Render every scene (or ``scene_ids``) into one labelled grid PNG (scene id; room, table
     material and edge profile; table size and height); returns its path."""
-    from PIL import Image, ImageDraw, ImageFont
+    from PIL import Image, ImageDraw
 
     from flatlab_lerobot.catalog import ROOMS, load_materials
 
@@ -243,10 +250,7 @@ def scene_sheet(out_png: str | Path, cols: int = 6, tile: tuple[int, int] = (360
     rows = (len(ids) + cols - 1) // cols
     sheet = Image.new("RGB", (cols * tw, rows * (th + label_h)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
-    try:
-        font = ImageFont.load_default(size=12)
-    except TypeError:  # Pillow < 10.1
-        font = ImageFont.load_default()
+    font = _label_font(12)
     for k, sid in enumerate(ids):
         s = scenes[sid]
         x, y = (k % cols) * tw, (k // cols) * (th + label_h)

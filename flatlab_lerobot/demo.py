@@ -57,7 +57,7 @@ def run_expert_episode(
     st = sim.grasp_status()
     success = sim.is_success()
     if not success and not reason:
-        reason = "timeout: " + ("object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped")
+        reason = "timeout: " + st.shortfall
     return {
         "object_id": object_id,
         "strategy": strategy,

@@ -236,9 +236,7 @@ class Evaluator:
                 success = bool(ep["success"])
                 reason = ""
                 if not success:
-                    reason = env._done_reason or (
-                        "timeout: " + ("object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped")
-                    )
+                    reason = env._done_reason or "timeout: " + st.shortfall
                 yield {
                     "policy": self.spec["policy"],
                     "object_id": spec.id,

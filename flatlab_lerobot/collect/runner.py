@@ -191,8 +191,7 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
     success = bool(info.get("is_success", False)) and not reason
     if not success and not reason:
         try:
-            st = env.sim.grasp_status()
-            why = "object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped"
+            why = env.sim.grasp_status().shortfall
         except Exception:  # noqa: BLE001
             why = "not lifted"
         reason = f"timeout after {len(frames)} steps: {why}"

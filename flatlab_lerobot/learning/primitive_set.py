@@ -70,6 +70,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flatlab_lerobot.learning import int_at_least
 from flatlab_lerobot.paths import OUTPUTS_DIR
 
 ARM_NAMES = ("left", "right")  # = sim.robot.ARMS (not imported here: keeps `--help` light)
@@ -367,8 +368,7 @@ def run_demo(cfg: PrimitiveSetConfig, object_id: str, demo_index: int, on_step=N
     success = bool(info.get("is_success", False)) and not reason
     if not success and not reason:
         try:
-            st = env.sim.grasp_status()
-            why = "object not aloft" if st.clearance < 0.05 else "held < 2 s or slipped"
+            why = env.sim.grasp_status().shortfall
         except Exception:  # noqa: BLE001
             why = "not lifted"
         reason = f"not lifted after {steps} steps: {why}"
@@ -763,19 +763,6 @@ def load(out: Path):
     return df, np.load(out / "scene_clouds.npy", mmap_mode="r"), np.load(out / "object_clouds.npy", mmap_mode="r")
 
 
-def _positive_int(lo):
-    def parse(s):
-        try:
-            v = int(s)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {s!r}") from None
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {s!r}")
-        return v
-
-    return parse
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         prog="flatlab primitive-set",
@@ -786,20 +773,20 @@ def main(argv=None) -> int:
         "--objects", default="split:train", help="comma-separated ids and/or split:<name> (default: split:train)"
     )
     ap.add_argument(
-        "--demos", type=_positive_int(1), default=5, help="demonstrations per object (paper: 50; default 5)"
+        "--demos", type=int_at_least(1), default=5, help="demonstrations per object (paper: 50; default 5)"
     )
     ap.add_argument("--seed", type=int, default=0, help="base seed (placements and cloud sampling)")
-    ap.add_argument("--points", type=_positive_int(1), default=4096, help="scene cloud size N (default 4096)")
-    ap.add_argument("--object-points", type=_positive_int(1), default=1024, help="object cloud size (default 1024)")
+    ap.add_argument("--points", type=int_at_least(1), default=4096, help="scene cloud size N (default 4096)")
+    ap.add_argument("--object-points", type=int_at_least(1), default=1024, help="object cloud size (default 1024)")
     ap.add_argument("--cameras", default=",".join(CAMERA_NAMES), help="views fused into the clouds")
-    ap.add_argument("--image-size", type=_positive_int(16), default=128, help="depth image side per camera (px)")
+    ap.add_argument("--image-size", type=int_at_least(16), default=128, help="depth image side per camera (px)")
     ap.add_argument("--capture", choices=CAPTURE_MODES, default="decision",
                     help="decision: when the expert poses the primitive (default); start: at its start pose")  # fmt: skip
     ap.add_argument("--strategy", choices=("auto", "A", "B", "C"), default="auto", help="auto: the catalog label")
-    ap.add_argument("--max-steps", type=_positive_int(1), default=600, help="control steps per demo at most")
+    ap.add_argument("--max-steps", type=int_at_least(1), default=600, help="control steps per demo at most")
     ap.add_argument("--xy-range", type=float, default=0.05, help="placement offset ±m (default 0.05)")
     ap.add_argument("--yaw-range", type=float, default=30.0, help="placement yaw ±deg (default 30)")
-    ap.add_argument("--workers", type=_positive_int(1), default=1, help="processes (one object shard each at a time)")
+    ap.add_argument("--workers", type=int_at_least(1), default=1, help="processes (one object shard each at a time)")
     ap.add_argument("--out", type=Path, default=OUTPUTS_DIR / "learning" / "primitive_set")
     ap.add_argument("--overwrite", action="store_true", help="discard existing shards and outputs in --out")
     ap.add_argument("--clean-shards", action="store_true", help="delete shards/ after a successful merge")

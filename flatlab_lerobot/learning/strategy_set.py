@@ -57,6 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flatlab_lerobot.learning import int_at_least
 from flatlab_lerobot.paths import OUTPUTS_DIR
 
 CAMERA_NAMES = ("front", "top", "left", "right")
@@ -364,19 +365,6 @@ def load(folder: Path) -> tuple[np.ndarray, object, dict]:
 
 
 # ------------------------------------------------------------------------------ CLI
-def _positive(name, lo=1):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"{name} must be >= {lo}, got {v}")
-        return v
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="flatlab strategy-set", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
@@ -386,21 +374,21 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--splits", default="train", help="comma-separated catalog splits, or 'all' (default: train)")
     ap.add_argument("--objects", default="", help="comma-separated object ids (overrides --splits)")
     ap.add_argument(
-        "--scales", type=_positive("--scales", 0), default=7, help="rescaled instances per object (default 7; 0: none)"
+        "--scales", type=int_at_least(0), default=7, help="rescaled instances per object (default 7; 0: none)"
     )
     ap.add_argument("--no-counterparts", action="store_true", help="no rigid counterparts of the cloths")
     ap.add_argument(
-        "--views", type=_positive("--views"), default=1, help="randomized placements per variant (default 1)"
+        "--views", type=int_at_least(1), default=1, help="randomized placements per variant (default 1)"
     )
     ap.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     ap.add_argument("--cameras", default=",".join(CAMERA_NAMES), help="comma-separated cameras (default: all four)")
     ap.add_argument(
-        "--image-size", type=_positive("--image-size", 16), default=512, help="render size in pixels (default 512)"
+        "--image-size", type=int_at_least(16), default=512, help="render size in pixels (default 512)"
     )
     ap.add_argument("--settle", type=float, default=0.5, help="seconds of physics before the capture (default 0.5)")
-    ap.add_argument("--points", type=_positive("--points"), default=2048, help="points per cloud (default 2048)")
-    ap.add_argument("--workers", type=_positive("--workers"), default=2, help="worker processes (default 2)")
-    ap.add_argument("--limit", type=_positive("--limit"), default=None, help="build only the first N variants")
+    ap.add_argument("--points", type=int_at_least(1), default=2048, help="points per cloud (default 2048)")
+    ap.add_argument("--workers", type=int_at_least(1), default=2, help="worker processes (default 2)")
+    ap.add_argument("--limit", type=int_at_least(1), default=None, help="build only the first N variants")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 

@@ -45,6 +45,11 @@ class GraspStatus:
     held_for: float  # seconds the hold has satisfied every condition
     success: bool
 
+    @property
+    def shortfall(self) -> str:
+        """Which part of the success rule an unsuccessful episode missed, for failure reasons."""
+        return "object not aloft" if self.clearance < LIFT_HEIGHT else "held < 2 s or slipped"
+
 
 @dataclass
 class SimObject:
