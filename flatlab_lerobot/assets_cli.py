@@ -105,13 +105,13 @@ def preview_xml(obj: ObjectSpec, table_size=(3.0, 3.0), table_rgba=(0.82, 0.8, 0
     span = max(obj.size[0], obj.size[1], 0.12)
     dist = 1.6 * span + 0.05  # the whole object in frame, also a long diagonal
     cam = np.array([0.55 * dist, -0.2 * dist, h + 0.95 * dist])
-    from flatlab_lerobot.sim.scene import look_at_xyaxes
+    from flatlab_lerobot.sim.scene import CLOTH_TIMESTEP, RIGID_TIMESTEP, look_at_xyaxes
 
     xy = " ".join(f"{v:.6g}" for v in look_at_xyaxes(cam, (0, 0, h)))
     if obj.deformable:
-        option = '<option timestep="0.004" integrator="discrete" solver="Newton" tolerance="1e-6" cone="elliptic"/>'
+        option = f'<option timestep="{CLOTH_TIMESTEP}" integrator="discrete" solver="Newton" tolerance="1e-6" cone="elliptic"/>'
     else:
-        option = '<option timestep="0.002" integrator="implicitfast" cone="elliptic" impratio="10"/>'
+        option = f'<option timestep="{RIGID_TIMESTEP}" integrator="implicitfast" cone="elliptic" impratio="10"/>'
     tx, ty = table_size
     return f"""
 <mujoco model="preview_{obj.id}">

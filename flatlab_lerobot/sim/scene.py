@@ -26,6 +26,16 @@ from flatlab_lerobot.sim.room import (
 )
 
 
+RIGID_TIMESTEP = 0.001
+"""Physics step of rigid scenes (s).  At 2 ms a light object pressed by a fingertip (a 30 g CD
+squeezed between the stiff finger pad and the table: 7 finger + 4 table contacts on a body 100x
+lighter than the arm) made the contact solve jump: the disc was shot up into the finger and then
+through the table top.  Strategy A on a CD and a cork coaster (5 seeds each): 0/10 at 2 ms,
+10/10 at 1 ms; B on ref_box, a glass chessboard and a pizza box: 16/18 at both steps."""
+CLOTH_TIMESTEP = 0.004
+"""Physics step of scenes with a cloth (s): flex collisions dominate the cost there."""
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """A named camera looking from ``pos`` at ``target`` (world frame, metres), ``fovy`` in degrees."""
@@ -58,7 +68,8 @@ class CellConfig:
     both bases (default: 0, on tables deeper than 0.6 m ARM_EDGE_REACH = 0.3 m behind the usable
     edge, so A still reaches it).  arm_base_drop: how far the bases sit below the table top (m),
     which lets a hand reach the table edge horizontally (measured with IK, see robot.py).  cameras: the named cameras (default: front, top, left, right).
-    rigid_timestep / cloth_timestep: physics step for scenes without / with a cloth (s).
+    rigid_timestep / cloth_timestep: physics step for scenes without / with a cloth (s); see
+    RIGID_TIMESTEP for why rigid scenes step at 1 ms.
 
     Scene dressing (``flatlab_lerobot.catalog.cell_config_for_scene`` fills these from
     ``envs/scenes``; the defaults give the plain cell): edge: front-edge profile (square | rounded |
@@ -77,8 +88,8 @@ class CellConfig:
     arm_base_y: float | None = None
     arm_base_drop: float = 0.15
     cameras: tuple[CameraSpec, ...] | None = None
-    rigid_timestep: float = 0.002
-    cloth_timestep: float = 0.004
+    rigid_timestep: float = RIGID_TIMESTEP
+    cloth_timestep: float = CLOTH_TIMESTEP
     extra: dict = field(default_factory=dict)
     edge: str = "square"
     table_rgba2: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
