@@ -353,10 +353,15 @@ def a_grasp(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))}, 0.6)
 
 
+A_LIFT = 0.16  # lift height of a rigid object (m)
+A_SHEET_LIFT_MARGIN = 0.08  # a sheet held by its front edge hangs its full length: lift that much + this (m)
+
+
 def a_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_grasp_arm(w, ctx)
     start = poses[arm]
-    return Primitive("lift", {arm: ArmMotion(start, _rel(start, (0.06, 0, 0.16)), (0.0, 0.0))}, 1.6)
+    dz = max(A_LIFT, float(max(w.size[0], w.size[1])) + A_SHEET_LIFT_MARGIN) if w.deformable else A_LIFT
+    return Primitive("lift", {arm: ArmMotion(start, _rel(start, (0.06, 0, dz)), (0.0, 0.0))}, 1.6 * dz / A_LIFT)
 
 
 def hold(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
