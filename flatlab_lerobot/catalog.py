@@ -166,8 +166,11 @@ class ObjectSpec:
     (defaults filled in).  size: bounding extent along the object's x, y, z in metres
     (z = thickness; round objects have x = y = diameter).  mass in kg.  com_offset: centre of
     mass relative to the bounding-box centre (m).  friction: sliding friction coefficient.
-    rgba: main colour.  strategy: the label (A|B|C).  flex: cloth settings (deformables only).
-    source: the file it came from.
+    rgba: main colour.  strategy: the label (A|B|C): the strategy that works on the object in this
+    simulator.  paper_strategy: the label the paper's design gives the category (its thin / thick /
+    deformable rule); it differs from ``strategy`` only where ``flatlab assets report`` measured
+    another strategy working clearly better (the YAML notes the measurement).  flex: cloth
+    settings (deformables only).  source: the file it came from.
     """
 
     id: str
@@ -185,6 +188,16 @@ class ObjectSpec:
     source: str = ""
     name: str = ""
     params: dict[str, Any] = field(default_factory=dict, hash=False)
+    paper_strategy: str = ""
+
+    def __post_init__(self):
+        if not self.paper_strategy:
+            object.__setattr__(self, "paper_strategy", self.strategy)
+
+    @property
+    def relabelled(self) -> bool:
+        """Whether the physically grounded label differs from the paper's."""
+        return self.strategy != self.paper_strategy
 
     @property
     def deformable(self) -> bool:
@@ -335,8 +348,12 @@ def parse_object(raw: dict[str, Any], source: str) -> ObjectSpec:
         allowed = DEFORMABLE_FAMILIES if deformable else tuple(s for s in SHAPES if s not in DEFORMABLE_FAMILIES)
         raise v.err("shape", f"a {material} object needs one of {list(allowed)}, got {shape!r}")
     strategy = v.choice("strategy", raw["strategy"], STRATEGIES)
-    if strategy not in info.strategies:
-        raise v.err("strategy", f"category '{category}' expects strategy {'/'.join(info.strategies)}, got {strategy!r}")
+    paper = v.choice("paper_strategy", raw["paper_strategy"], STRATEGIES) if "paper_strategy" in raw else strategy
+    field_ = "paper_strategy" if "paper_strategy" in raw else "strategy"
+    if paper not in info.strategies:
+        raise v.err(field_, f"category '{category}' expects strategy {'/'.join(info.strategies)}, got {paper!r}")
+    if "paper_strategy" in raw and paper == strategy:
+        raise v.err("paper_strategy", f"equals strategy {strategy!r}: give paper_strategy only for a grounded relabel")
     ranges = SHEET_SIZE if deformable else RIGID_SIZE
     size = v.vector("size", raw["size"], 3)
     for i, (lo, hi) in enumerate(ranges):
@@ -365,6 +382,7 @@ def parse_object(raw: dict[str, Any], source: str) -> ObjectSpec:
         size=size,
         mass=v.number("mass", raw["mass"], *MASS_RANGE, lo_inclusive=True),
         strategy=strategy,
+        paper_strategy=paper,
         friction=v.number("friction", raw.get("friction", 0.4), *FRICTION_RANGE, lo_inclusive=True),
         com_offset=com,
         rgba=v.rgba("rgba", raw.get("rgba", [0.6, 0.3, 0.2, 1.0])),

@@ -138,12 +138,14 @@ def _separated(a: np.ndarray, b: np.ndarray, gap: float) -> bool:
 
 
 def eligible_objects(config: DeskConfig, objects: dict[str, ObjectSpec] | None = None) -> dict[str, list[ObjectSpec]]:
-    """Category -> the rigid objects of ``config.split`` whose footprint fits (sorted by id).
-    (Every object of a category carries the same strategy label in the catalog.)"""
+    """Category -> the rigid objects of ``config.split`` whose footprint fits and whose (grounded)
+    label is a strategy the desk chains (A or B), sorted by id.  (Every object of a category
+    carries the same paper label; categories are drawn by that label.)"""
     objects = objects if objects is not None else load_objects()
     out: dict[str, list[ObjectSpec]] = {}
     for o in sorted(objects.values(), key=lambda o: o.id):
-        if o.split == config.split and not o.deformable and max(o.size[:2]) <= config.max_extent:
+        if (o.split == config.split and not o.deformable and max(o.size[:2]) <= config.max_extent
+                and o.strategy in config.per_strategy):
             out.setdefault(o.category, []).append(o)
     return out
 
@@ -161,7 +163,7 @@ def sample_desk(
     ``layout_tries`` placements per draw, ``draws`` draws (a draw of big objects may not fit)."""
     config = config or DeskConfig()
     by_cat = eligible_objects(config, objects)
-    cats_of = {st: sorted(c for c, objs in by_cat.items() if objs[0].strategy == st) for st in config.per_strategy}
+    cats_of = {st: sorted(c for c, objs in by_cat.items() if objs[0].paper_strategy == st) for st in config.per_strategy}
     for st, n in config.per_strategy.items():
         if len(cats_of[st]) < n:
             raise ValueError(

@@ -119,7 +119,7 @@ def scaled(spec: ObjectSpec, s: float, cell: CellConfig | None = None) -> Object
         spec, id=spec.id + scale_tag(s), name=f"{spec.name or spec.id} (x{s:.4g})",
         size=tuple(float(v) for v in size), com_offset=tuple(float(v) for v in com), mass=float(mass), params=params,
     )  # fmt: skip
-    return dataclasses.replace(out, strategy=label(out))
+    return dataclasses.replace(out, strategy=label(out), paper_strategy=label(out))
 
 
 def _shorts_outline(spec: ObjectSpec) -> tuple[float, float]:
@@ -153,7 +153,7 @@ def rigid_counterpart(spec: ObjectSpec) -> ObjectSpec:
         flex=None,
         params=params,
     )
-    return dataclasses.replace(out, strategy=label(out))
+    return dataclasses.replace(out, strategy=label(out), paper_strategy=label(out))
 
 
 def label(spec: ObjectSpec) -> str:
@@ -167,8 +167,9 @@ def label(spec: ObjectSpec) -> str:
 
 
 def label_disagreements(objects: Iterable[ObjectSpec]) -> list[tuple[str, str, str]]:
-    """(id, catalog label, rule label) of every object whose catalog label the rule does not give."""
-    return [(o.id, o.strategy, label(o)) for o in objects if label(o) != o.strategy]
+    """(id, paper label, rule label) of every object whose paper (design) label the rule does not
+    give.  The rule is fitted to the paper's labels; grounded relabels are reported separately."""
+    return [(o.id, o.paper_strategy, label(o)) for o in objects if label(o) != o.paper_strategy]
 
 
 # ------------------------------------------------------------------------------ scale limits

@@ -35,14 +35,15 @@ def test_paper_counts():
 def test_strategy_labels_follow_design():
     for o in benchmark_objects():
         if o.deformable:
-            assert o.strategy == "C", o.id
+            assert o.paper_strategy == "C", o.id
         elif o.category in ("Book", "Photo Album"):
-            assert o.strategy == ("A" if o.size[2] <= 0.03 else "B"), o.id
+            assert o.paper_strategy == ("A" if o.size[2] <= 0.03 else "B"), o.id
         else:
-            assert o.strategy == CATEGORIES[o.category].strategies[0], o.id
+            assert o.paper_strategy == CATEGORIES[o.category].strategies[0], o.id
+        assert o.relabelled == (o.strategy != o.paper_strategy)
     # thickness decides within the mixed categories: both labels occur
     for cat in ("Book", "Photo Album"):
-        assert {o.strategy for o in benchmark_objects() if o.category == cat} == {"A", "B"}
+        assert {o.paper_strategy for o in benchmark_objects() if o.category == cat} == {"A", "B"}
 
 
 def test_objects_differ_within_category():
@@ -97,6 +98,14 @@ def _write(tmp_path, text, name="cat.yaml"):
 def test_good_file_loads(tmp_path):
     objs = load_objects(_write(tmp_path, GOOD))
     assert objs["my_book"].param("page_rgba") == (0.95, 0.93, 0.86, 1)
+    assert objs["my_book"].paper_strategy == "A" and not objs["my_book"].relabelled
+
+
+def test_grounded_relabel(tmp_path):
+    """A grounded label may leave the category's strategies; the paper's label stays alongside."""
+    objs = load_objects(_write(tmp_path, GOOD.replace("strategy: A\n", "strategy: C\n    paper_strategy: A\n")))
+    book = objs["my_book"]
+    assert (book.strategy, book.paper_strategy, book.relabelled) == ("C", "A", True)
 
 
 @pytest.mark.parametrize(
@@ -119,6 +128,9 @@ def test_good_file_loads(tmp_path):
         (("strategy: A\n", "strategy: A\n    com_offset: [0.5, 0, 0]\n"), "com_offset[0]", "inside the object"),
         (("strategy: A\n", "strategy: A\n    rgba: [1, 0, 0, 2]\n"), "rgba[3]", "must be <="),
         (("strategy: A\n", "strategy: A\n    flex: {count: [5, 5]}\n"), "flex", "only deformable"),
+        (("strategy: A\n", "strategy: B\n    paper_strategy: C\n"), "paper_strategy", "expects strategy"),
+        (("strategy: A\n", "strategy: A\n    paper_strategy: A\n"), "paper_strategy", "only for a grounded relabel"),
+        (("strategy: A\n", "strategy: D\n    paper_strategy: A\n"), "strategy", "must be one of"),
     ],
 )
 def test_one_clear_error(tmp_path, edit, field, message):

@@ -55,7 +55,7 @@ def test_labels_and_transformations(built):
         else:
             assert row.strategy == T.label(v.spec) and row.label_source == "rule"
     cloth = index[index.base_object_id == "mousepad_standard"]
-    assert list(cloth.strategy) == ["C"] * 3 + ["A"] * 3
+    assert list(cloth.strategy) == ["A"] + ["C"] * 2 + ["A"] * 3  # original: grounded A; scales: the rule's C
     assert meta["counts"]["strategy"] == dict(sorted(index.strategy.value_counts().items()))
     assert meta["scale_ranges"]["box_gift"]["scales"] == list(T.seven_scales(OBJECTS["box_gift"], n=2))
 

@@ -19,6 +19,8 @@ def test_grounded_label_rules():
     assert grounded_label("B", {"A": 0.6, "B": 0.6, "C": 0.0}) == "B"  # a tie keeps the catalog label
     assert grounded_label("C", {"A": 0.0, "B": 0.0, "C": 0.0}) == "C"  # nothing works: keep the label
     assert grounded_label("A", {"A": None, "B": None, "C": None}) == "A"
+    assert grounded_label("A", {"A": 0.6, "B": 0.8, "C": 0.0}) == "A"  # one trial better: within the margin
+    assert grounded_label("C", {"A": 1.0, "B": 0.0, "C": 0.6}) == "A"  # two trials better: relabelled
 
 
 def _write(d, strategy, results):
@@ -46,7 +48,8 @@ def test_analysis_and_markdown(tmp_path):
     md = markdown(res, {"date": "x", "objects": 2, "trials": 5, "seed": 0, "workers": 1, "wall_s": {"A": 60.0}})
     assert "| Book | 1 | A | 4/5 | 80% | **no** |" in md
     assert "| Box | 1 | B | 5/5 | 100% | yes |" in md
-    assert "0 of 2 objects differ" in md
+    assert "0 of 2 objects have a grounded label other than their current catalog label" in md
+    assert "0 objects have a grounded label other than the thin" in md
 
 
 def test_wrong_strategy_in_a_run_is_an_error(tmp_path):
@@ -72,3 +75,32 @@ def test_report_end_to_end(tmp_path):
     assert {s: int(r[0]["G"]) for s, r in runs.items()} == row["successes"]
     assert (out / "timing.json").exists()
     assert "## Wrong-strategy matrix" in md and "ref_book" in md
+
+
+def test_apply_labels_edits_only_the_label_lines(tmp_path, monkeypatch):
+    """--apply-labels: the grounded label goes into the object's YAML with the evidence, the paper's
+    label is kept as paper_strategy, comments and other objects stay; relabelling back removes it."""
+    import shutil
+
+    from flatlab_lerobot import catalog
+    from flatlab_lerobot.bench import validation as V
+
+    src = catalog.get_object("disk_cork_coaster").source
+    path = tmp_path / "disk.yaml"
+    shutil.copy(src, path)
+    original = path.read_text()
+    fake = {o.id: o for o in catalog.load_objects(tmp_path).values()}
+    monkeypatch.setattr(catalog, "get_object", lambda oid: fake[oid])
+    row = {"object_id": "disk_cork_coaster", "label": "A", "paper": "A", "grounded": "C",
+           "successes": {"A": 0, "B": 0, "C": 3}, "trials": {"A": 5, "B": 5, "C": 5}}  # fmt: skip
+    assert V.apply_labels([row], "test run") == ["disk_cork_coaster"]
+    objs = catalog.load_objects(tmp_path)
+    cork = objs["disk_cork_coaster"]
+    assert (cork.strategy, cork.paper_strategy) == ("C", "A")
+    assert "strategy: C  # grounded: A 0/5, B 0/5, C 3/5 (test run)" in path.read_text()
+    assert all(o.strategy == "A" and not o.relabelled for o in objs.values() if o.id != "disk_cork_coaster")
+    assert path.read_text().splitlines()[0] == original.splitlines()[0]  # the header comment stays
+    fake = {o.id: o for o in objs.values()}
+    back = {**row, "label": "C", "grounded": "A"}
+    assert V.apply_labels([back], "test run") == ["disk_cork_coaster"]
+    assert path.read_text() == original

@@ -30,11 +30,13 @@ from collections import defaultdict
 from pathlib import Path
 
 from flatlab_lerobot.catalog import BENCHMARK_SPLITS, benchmark_objects
+from flatlab_lerobot.transforms import label as rule_label
 
 STRATEGY_POLICY = {"A": "slide_only", "B": "lift_only", "C": "fold_only"}
 """The ``flatlab eval`` policy that forces each strategy."""
 CATEGORY_BAR = 0.9  # the labelled strategy must succeed this often in every category
 WORKS = 0.5  # a strategy "works" on an object when it succeeds in at least this share of trials
+GROUNDED_MARGIN = 0.4  # another strategy must beat the current label by this much to relabel an object
 BOX_CATEGORIES = ("Box",)
 FABRIC_CATEGORIES = ("Fabric", "Towel", "Scarf")
 
@@ -72,14 +74,16 @@ def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.0f}%"
 
 
-def grounded_label(rule: str, rates: dict[str, float | None]) -> str:
-    """The strategy that works best (ties and no data keep the catalog's rule label)."""
+def grounded_label(label: str, rates: dict[str, float | None]) -> str:
+    """The strategy that works best.  The object's current label is kept unless another strategy
+    beats it by at least GROUNDED_MARGIN (2 of 5 trials: one lucky trial does not relabel), and
+    when nothing works or nothing was run."""
     known = {s: r for s, r in rates.items() if r is not None}
     if not known:
-        return rule
+        return label
     best = max(known.values())
-    if best == 0.0 or known.get(rule) == best:
-        return rule
+    if best == 0.0 or (label in known and best - known[label] < GROUNDED_MARGIN - 1e-9):
+        return label
     return min(s for s, r in known.items() if r == best)
 
 
@@ -93,6 +97,7 @@ def analyse(runs: dict[str, dict[str, list[dict]]], objects=None) -> dict:
         rows.append({
             "object_id": o.id, "category": o.category, "split": o.split, "family": o.family,
             "thickness_m": float(o.size[2]), "deformable": o.deformable, "label": o.strategy,
+            "paper": o.paper_strategy, "rule": rule_label(o),
             "trials": {s: len(r) for s, r in per.items()},
             "successes": {s: sum(bool(x["G"]) for x in r) for s, r in per.items()},
             "rates": rates, "grounded": g,
@@ -120,7 +125,7 @@ def analyse(runs: dict[str, dict[str, list[dict]]], objects=None) -> dict:
         n = sum(cats[c]["by"][strategy][1] for c in cat_names if c in cats)
         return (k / n if n else None), n
 
-    thin = [r for r in rows if r["label"] == "A"]
+    thin = [r for r in rows if r["paper"] == "A"]  # the paper's sets, whatever the grounded labels
     deform = [r for r in rows if r["deformable"]]
 
     def rows_rate(sel, strategy):
@@ -130,7 +135,7 @@ def analyse(runs: dict[str, dict[str, list[dict]]], objects=None) -> dict:
     pattern = {
         "A on boxes": rate_of(BOX_CATEGORIES, "A"),
         "A on fabrics (Fabric, Towel, Scarf)": rate_of(FABRIC_CATEGORIES, "A"),
-        "B on thin rigid objects (label A)": rows_rate(thin, "B"),
+        "B on thin rigid objects (paper label A)": rows_rate(thin, "B"),
         "B on deformable objects": rows_rate(deform, "B"),
     }
     return {"rows": rows, "categories": cats, "splits": splits, "pattern": pattern}
@@ -176,20 +181,29 @@ def markdown(result: dict, meta: dict) -> str:
     for name, (rate, n) in result["pattern"].items():
         L.append(f"- {name}: {_pct(rate)} over {n} trials")
     diff = [r for r in rows if r["grounded"] != r["label"]]
+    off_rule = [r for r in rows if r["grounded"] != r["rule"]]
+    relabelled = [r for r in rows if r["label"] != r["paper"]]
     L += [
         "",
         "## Physically grounded labels",
         "",
-        "The grounded label is the strategy with the highest success rate on the object (ties keep the "
-        f"catalog label; an object no strategy lifts keeps it too).  {len(diff)} of {len(rows)} objects differ from "
-        "the catalog's thin (A) / thick (B) / deformable (C) rule:",
+        "The grounded label is the strategy with the highest success rate on the object; the current "
+        f"label stays unless another strategy beats it by at least {GROUNDED_MARGIN:.0%} of the trials, "
+        "or when no strategy lifts the object.",
+        "",
+        f"- {len(diff)} of {len(rows)} objects have a grounded label other than their current catalog label "
+        "(relabel candidates, table below).",
+        f"- {len(relabelled)} objects already carry a grounded label that differs from the paper's "
+        f"({', '.join(r['object_id'] for r in relabelled) or 'none'}).",
+        f"- {len(off_rule)} objects have a grounded label other than the thin (A) / thick (B) / deformable (C) "
+        f"rule's ({', '.join(r['object_id'] for r in off_rule) or 'none'}).",
         "",
     ]
     if diff:
-        L += ["| object | category | thickness (mm) | rule | grounded | A | B | C |", "|---|---|---|---|---|---|---|---|"]
+        L += ["| object | category | thickness (mm) | paper | rule | label | grounded | A | B | C |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in diff:
             L.append(
-                f"| {r['object_id']} | {r['category']} | {1000 * r['thickness_m']:.0f} | {r['label']} | {r['grounded']} | "
+                f"| {r['object_id']} | {r['category']} | {1000 * r['thickness_m']:.0f} | {r['paper']} | {r['rule']} | {r['label']} | **{r['grounded']}** | "
                 + " | ".join(f"{r['successes'][s]}/{r['trials'][s]}" for s in "ABC") + " |"
             )
     nothing = [r["object_id"] for r in rows if all((r["rates"][s] or 0.0) == 0.0 for s in "ABC")]
@@ -213,6 +227,54 @@ def markdown(result: dict, meta: dict) -> str:
     return "\n".join(L) + "\n"
 
 
+def apply_labels(rows: list[dict], trials_note: str) -> list[str]:
+    """Write every row's grounded label into its catalog YAML (``source`` of the object), in place:
+    ``strategy: <grounded>  # grounded: A k/n, B k/n, C k/n (<trials_note>)`` plus
+    ``paper_strategy: <paper label>``; an object whose grounded label is the paper's again loses
+    both.  Only the object's own ``strategy`` / ``paper_strategy`` lines change (comments and the
+    rest of the file stay); each file is re-parsed before it replaces the old one.  Returns the ids
+    whose label changed."""
+    import re
+
+    import yaml
+
+    from flatlab_lerobot.catalog import get_object, parse_object
+
+    by_file: dict[Path, list[dict]] = defaultdict(list)
+    for r in rows:
+        if r["grounded"] != r["label"]:
+            by_file[Path(get_object(r["object_id"]).source)].append(r)
+    changed = []
+    for path, todo in by_file.items():
+        lines = path.read_text().splitlines(keepends=True)
+        for r in todo:
+            start = next((i for i, ln in enumerate(lines) if re.match(rf"\s*-\s+id:\s*{re.escape(r['object_id'])}\s*$", ln)), None)
+            if start is None:
+                raise ValueError(f"{path}: object '{r['object_id']}': no '- id: {r['object_id']}' line to relabel")
+            end = next((i for i in range(start + 1, len(lines)) if re.match(r"\s*-\s+id:", lines[i])), len(lines))
+            block = [ln for ln in lines[start:end] if not re.match(r"\s+paper_strategy:", ln)]
+            k = next(i for i, ln in enumerate(block) if re.match(r"\s+strategy:", ln))
+            indent = re.match(r"(\s+)", block[k]).group(1)
+            if r["grounded"] == r["paper"]:
+                block[k] = f"{indent}strategy: {r['paper']}\n"
+            else:
+                evidence = ", ".join(f"{s} {r['successes'][s]}/{r['trials'][s]}" for s in "ABC")
+                block[k] = f"{indent}strategy: {r['grounded']}  # grounded: {evidence} ({trials_note})\n"
+                block.insert(k + 1, f"{indent}paper_strategy: {r['paper']}\n")
+            lines[start:end] = block
+            changed.append(r["object_id"])
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text("".join(lines))
+        try:  # the edited file must still parse into the same objects
+            for raw in yaml.safe_load(tmp.read_text())["objects"]:
+                parse_object(raw, str(path))
+        except Exception:
+            tmp.unlink()
+            raise
+        os.replace(tmp, path)
+    return changed
+
+
 def _atomic(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
@@ -229,6 +291,8 @@ def main(argv=None) -> int:
     ap.add_argument("--objects", default="", help="comma-separated object ids (overrides --splits)")
     ap.add_argument("--strategies", default="A,B,C", help="which strategies to run now (the report reads all three)")
     ap.add_argument("--report-only", action="store_true", help="only (re)write the report from the runs already there")
+    ap.add_argument("--apply-labels", action="store_true",
+                    help="write the grounded labels into the catalog YAML files (the paper's label is kept as paper_strategy)")
     args = ap.parse_args(argv)
     from flatlab_lerobot.paths import OUTPUTS_DIR
 
@@ -273,6 +337,10 @@ def main(argv=None) -> int:
     failing = [c for c, v in result["categories"].items() if v["labelled"][1] and v["labelled"][0] / v["labelled"][1] < CATEGORY_BAR]
     print(f"[report] {out / 'report.md'}: {len(result['categories']) - len(failing)}/{len(result['categories'])} categories "
           f">= {100 * CATEGORY_BAR:.0f} %" + (f"; below: {', '.join(sorted(failing))}" if failing else ""))  # fmt: skip
+    if args.apply_labels:
+        note = f"flatlab assets report, {args.trials} trials, seeds {args.seed}-{args.seed + args.trials - 1}"
+        changed = apply_labels(result["rows"], note)
+        print(f"[report] relabelled {len(changed)} object(s) in the catalog: {', '.join(changed) or 'none'}")
     return 0
 
 
