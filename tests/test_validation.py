@@ -77,7 +77,7 @@ def test_report_end_to_end(tmp_path):
     assert "## Wrong-strategy matrix" in md and "ref_book" in md
 
 
-def test_apply_labels_edits_only_the_label_lines(tmp_path, monkeypatch):
+def test_apply_labels_edits_only_the_label_lines(tmp_path):
     """--apply-labels: the grounded label goes into the object's YAML with the evidence, the paper's
     label is kept as paper_strategy, comments and other objects stay; relabelling back removes it."""
     import shutil
@@ -89,9 +89,7 @@ def test_apply_labels_edits_only_the_label_lines(tmp_path, monkeypatch):
     path = tmp_path / "disk.yaml"
     shutil.copy(src, path)
     original = path.read_text()
-    fake = {o.id: o for o in catalog.load_objects(tmp_path).values()}
-    monkeypatch.setattr(catalog, "get_object", lambda oid: fake[oid])
-    row = {"object_id": "disk_cork_coaster", "label": "A", "paper": "A", "grounded": "C",
+    row = {"object_id": "disk_cork_coaster", "label": "A", "paper": "A", "grounded": "C", "source": str(path),
            "successes": {"A": 0, "B": 0, "C": 3}, "trials": {"A": 5, "B": 5, "C": 5}}  # fmt: skip
     assert V.apply_labels([row], "test run") == ["disk_cork_coaster"]
     objs = catalog.load_objects(tmp_path)
@@ -100,7 +98,6 @@ def test_apply_labels_edits_only_the_label_lines(tmp_path, monkeypatch):
     assert "strategy: C  # grounded: A 0/5, B 0/5, C 3/5 (test run)" in path.read_text()
     assert all(o.strategy == "A" and not o.relabelled for o in objs.values() if o.id != "disk_cork_coaster")
     assert path.read_text().splitlines()[0] == original.splitlines()[0]  # the header comment stays
-    fake = {o.id: o for o in objs.values()}
     back = {**row, "label": "C", "grounded": "A"}
     assert V.apply_labels([back], "test run") == ["disk_cork_coaster"]
     assert path.read_text() == original

@@ -97,7 +97,7 @@ def analyse(runs: dict[str, dict[str, list[dict]]], objects=None) -> dict:
         rows.append({
             "object_id": o.id, "category": o.category, "split": o.split, "family": o.family,
             "thickness_m": float(o.size[2]), "deformable": o.deformable, "label": o.strategy,
-            "paper": o.paper_strategy, "rule": rule_label(o),
+            "paper": o.paper_strategy, "rule": rule_label(o), "source": o.source,
             "trials": {s: len(r) for s, r in per.items()},
             "successes": {s: sum(bool(x["G"]) for x in r) for s, r in per.items()},
             "rates": rates, "grounded": g,
@@ -151,8 +151,10 @@ def markdown(result: dict, meta: dict) -> str:
         + ", ".join(f"{s} {meta['wall_s'].get(s, 0) / 60:.1f} min" for s in "ABC")
         + f" (total {sum(meta['wall_s'].values()) / 60:.1f} min; runs resumed from earlier output count only the new part).",
         "",
-        "Success is the core rule: lowest object point >= 5 cm above the table, no table contact, held by the "
-        "gripper(s) for 2 s, slipping < 1 cm.",
+        (
+            "Success is the core rule: lowest object point >= 5 cm above the table, no table contact, held by the "
+            "gripper(s) for 2 s, slipping < 1 cm."
+        ),
         "",
         "## The labelled strategy, per category (bar: >= 90 %)",
         "",
@@ -187,16 +189,24 @@ def markdown(result: dict, meta: dict) -> str:
         "",
         "## Physically grounded labels",
         "",
-        "The grounded label is the strategy with the highest success rate on the object; the current "
-        f"label stays unless another strategy beats it by at least {GROUNDED_MARGIN:.0%} of the trials, "
-        "or when no strategy lifts the object.",
+        (
+            "The grounded label is the strategy with the highest success rate on the object; the current "
+            f"label stays unless another strategy beats it by at least {GROUNDED_MARGIN:.0%} of the trials, "
+            "or when no strategy lifts the object."
+        ),
         "",
-        f"- {len(diff)} of {len(rows)} objects have a grounded label other than their current catalog label "
-        "(relabel candidates, table below).",
-        f"- {len(relabelled)} objects already carry a grounded label that differs from the paper's "
-        f"({', '.join(r['object_id'] for r in relabelled) or 'none'}).",
-        f"- {len(off_rule)} objects have a grounded label other than the thin (A) / thick (B) / deformable (C) "
-        f"rule's ({', '.join(r['object_id'] for r in off_rule) or 'none'}).",
+        (
+            f"- {len(diff)} of {len(rows)} objects have a grounded label other than their current catalog label "
+            "(relabel candidates, table below)."
+        ),
+        (
+            f"- {len(relabelled)} objects already carry a grounded label that differs from the paper's "
+            f"({', '.join(r['object_id'] for r in relabelled) or 'none'})."
+        ),
+        (
+            f"- {len(off_rule)} objects have a grounded label other than the thin (A) / thick (B) / deformable (C) "
+            f"rule's ({', '.join(r['object_id'] for r in off_rule) or 'none'})."
+        ),
         "",
     ]
     if diff:
@@ -228,7 +238,7 @@ def markdown(result: dict, meta: dict) -> str:
 
 
 def apply_labels(rows: list[dict], trials_note: str) -> list[str]:
-    """Write every row's grounded label into its catalog YAML (``source`` of the object), in place:
+    """Write every row's grounded label into its catalog YAML (the row's ``source``), in place:
     ``strategy: <grounded>  # grounded: A k/n, B k/n, C k/n (<trials_note>)`` plus
     ``paper_strategy: <paper label>``; an object whose grounded label is the paper's again loses
     both.  Only the object's own ``strategy`` / ``paper_strategy`` lines change (comments and the
@@ -238,12 +248,12 @@ def apply_labels(rows: list[dict], trials_note: str) -> list[str]:
 
     import yaml
 
-    from flatlab_lerobot.catalog import get_object, parse_object
+    from flatlab_lerobot.catalog import parse_object
 
     by_file: dict[Path, list[dict]] = defaultdict(list)
     for r in rows:
         if r["grounded"] != r["label"]:
-            by_file[Path(get_object(r["object_id"]).source)].append(r)
+            by_file[Path(r["source"])].append(r)
     changed = []
     for path, todo in by_file.items():
         lines = path.read_text().splitlines(keepends=True)
