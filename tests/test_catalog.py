@@ -195,15 +195,8 @@ def test_scenes_and_materials():
         assert cell.table_friction == mats[scenes[sid].material].friction
 
 
-def test_scene_errors(tmp_path):
-    mats = tmp_path / "materials"
-    mats.mkdir()
-    (mats / "m.yaml").write_text("materials:\n  - {id: oak, name: oak, friction: 0.4, rgba: [0.6, 0.4, 0.3, 1]}\n")
-    scenes = tmp_path / "scenes"
-    scenes.mkdir()
-    good = ("scenes:\n  - {id: s1, room: Study, name: desk, table_size: [0.6, 0.9], table_height: 0.75,"
-            " table_thickness: 0.03, edge: square, material: oak}\n")
-    (scenes / "s.yaml").write_text(good)
+def test_scene_errors(tiny_scene_catalog):
+    scenes, mats, good = tiny_scene_catalog("edge: square, material: oak")
     assert load_scenes(scenes, mats)["s1"].room == "Study"
     for old, new, field in [("Study", "Garage", "room"), ("material: oak", "material: jade", "material"),
                             ("table_height: 0.75", "table_height: 2.0", "table_height"),

@@ -167,15 +167,8 @@ def test_edge_profiles_keep_a_box_on_the_top():
         assert max(hi[2] for _, hi in boxes) == pytest.approx(base.table_height, abs=1e-6), edge
 
 
-def test_bad_scene_inputs_name_file_and_field(tmp_path):
-    mats = tmp_path / "materials"
-    mats.mkdir()
-    (mats / "m.yaml").write_text("materials:\n  - {id: oak, name: oak, friction: 0.4, rgba: [0.6, 0.4, 0.3, 1]}\n")
-    scenes = tmp_path / "scenes"
-    scenes.mkdir()
-    good = ("scenes:\n  - {id: s1, room: Study, name: desk, table_size: [0.6, 0.9], table_height: 0.75,"
-            " table_thickness: 0.03, edge: rounded, material: oak, props: [bookshelf, chair]}\n")
-    (scenes / "s.yaml").write_text(good)
+def test_bad_scene_inputs_name_file_and_field(tiny_scene_catalog):
+    scenes, mats, good = tiny_scene_catalog("edge: rounded, material: oak, props: [bookshelf, chair]")
     cell = CellConfig(**cell_config_for_scene("s1", scenes, mats))
     assert cell.props == ("bookshelf", "chair") and cell.edge == "rounded" and cell.table_friction == 0.4
     for old, new, fld in [("chair]", "piano]", "props[1]"), ("material: oak", "material: jade", "material")]:
