@@ -17,6 +17,20 @@ for c in "${candidates[@]}"; do
 done
 [ -n "$py" ] || { echo "setup: Python 3.12 not found (set PYTHON=/path/to/python3.12)" >&2; exit 1; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[test]"
+# torch pulls several GB of CUDA wheels from PyPI; a dropped connection mid-download
+# (seen in CI: nvidia-cublas stuck at 289 of 423 MB) must not fail the whole setup.
+# pip resumes a broken download itself (PIP_RESUME_RETRIES); a failed install is
+# retried whole, reusing the wheels already in pip's cache.
+export PIP_RESUME_RETRIES="${PIP_RESUME_RETRIES:-20}"
+pipi() {
+  local attempt
+  for attempt in 1 2 3; do
+    .venv/bin/python -m pip install -q "$@" && return 0
+    echo "setup: pip install $* failed (attempt $attempt of 3)" >&2
+    [ "$attempt" = 3 ] || sleep $((attempt * 15))
+  done
+  return 1
+}
+pipi --upgrade pip
+pipi -e ".[test]"
 echo "setup: ready ($(.venv/bin/python --version), $(.venv/bin/python -c 'import mujoco, lerobot; print("mujoco", mujoco.__version__, "lerobot", lerobot.__version__)'))"
