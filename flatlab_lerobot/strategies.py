@@ -415,7 +415,7 @@ C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = False):
-    u, half = w.squeeze_axis()
+    u, _ = w.squeeze_axis()
     p = w.pos + s * dist * u
     f = u if finger_along_u else np.cross(_p(0, 0, 1), u)
     return _p(p[0], p[1], w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP + dz), tcp_rotation(DOWN, f)
@@ -478,8 +478,13 @@ def c_pinch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     )
 
 
+C_LIFT = 0.32  # lift height of a pinched fold (m) ...
+C_LIFT_MARGIN = 0.06  # ... at least the sheet's diagonal + this: a pinch near an edge lets it hang that long (m)
+
+
 def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive("lift", {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.32)), (0.0, 0.0))}, 2.0)
+    dz = max(C_LIFT, float(np.hypot(w.size[0], w.size[1])) + C_LIFT_MARGIN)
+    return Primitive("lift", {"right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, dz)), (0.0, 0.0))}, 2.0 * dz / C_LIFT)
 
 
 STRATEGIES = {

@@ -7,6 +7,7 @@ run for the book and the box; the towel, whose cloth is slow to simulate, gets t
 import pytest
 
 from flatlab_lerobot.demo import run_expert_episode
+from flatlab_lerobot.strategies import World
 
 SEEDS = range(10)
 
@@ -64,7 +65,7 @@ def test_slide_never_pushes_a_small_object_past_its_balance_point():
     import numpy as np
 
     from flatlab_lerobot.sim.robot import tcp_rotation
-    from flatlab_lerobot.strategies import A_SLIDE_EXTRA, World, _a_overhang_target, a_slide
+    from flatlab_lerobot.strategies import A_SLIDE_EXTRA, _a_overhang_target, a_slide
 
     for diameter in (0.10, 0.12, 0.30):
         w = World(np.array([0.0, 0.0, 0.752]), 0.0, np.array([diameter, diameter, 0.005]), False, 0.75, 0.3)
@@ -76,3 +77,19 @@ def test_slide_never_pushes_a_small_object_past_its_balance_point():
         centre_margin = 0.5 * diameter - _a_overhang_target(w)
         assert missing < dist <= missing + min(A_SLIDE_EXTRA, 0.5 * centre_margin) + 1e-9
         assert w.max_x() + dist - w.edge_x < 0.5 * diameter  # the centre stays on the table
+
+
+def test_c_lifts_a_sheet_higher_than_it_can_hang():
+    """A fold pinched near an edge lets a square cloth hang up to its diagonal: the C lift must clear
+    that (a 25 x 25 cm washcloth hung 2.9 cm above the table after the old fixed 32 cm lift)."""
+    import numpy as np
+
+    from flatlab_lerobot.sim.robot import tcp_rotation
+    from flatlab_lerobot.strategies import c_lift
+
+    pose = (np.array([0.0, 0.0, 0.76]), tcp_rotation(np.array([0.0, 0.0, -1.0]), [0.0, 1.0, 0.0]))
+    for size in ((0.25, 0.25), (0.35, 0.3), (0.1, 0.1)):
+        w = World(np.array([0.0, 0.0, 0.752]), 0.0, np.array([*size, 0.003]), True, 0.75, 0.3)
+        prim = c_lift(None, w, {"left": pose, "right": pose}, {"left": 0.0, "right": 0.0}, {})
+        dz = float(prim.motions["right"].end[0][2] - pose[0][2])
+        assert dz >= np.hypot(*size) + 0.05 and dz >= 0.3
