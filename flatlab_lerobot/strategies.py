@@ -385,9 +385,24 @@ def _b_targets(w: World, inset: float, dz: float = 0.0):
     return out
 
 
+B_ABOVE = 0.05  # the hands come down to the touch start from this far above the object's top (m)
+
+
+def b_preapproach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """Both hands straight above their touch start.  A joint-space transit straight to a start
+    beside a tall, large object swept the hand onto its top edge (a 6 cm album, seen from above):
+    the hand then pressed on the top instead of squeezing the side."""
+    top = w.table_height + w.size[2] + B_ABOVE
+    motions = {}
+    for a, (p, R) in _b_targets(w, -0.04).items():
+        above = (_p(p[0], p[1], max(p[2], top)), R)
+        motions[a] = ArmMotion(above, above, (B_OPEN, B_OPEN))
+    return Primitive("move", motions, 0.2, transit=2.0)
+
+
 def b_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
     far, near = _b_targets(w, -0.04), _b_targets(w, 0.0)
-    return Primitive("touch", {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}, 1.0, transit=2.0)
+    return Primitive("touch", {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}, 1.0, transit=0.8)
 
 
 def b_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
@@ -489,7 +504,7 @@ def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 
 STRATEGIES = {
     "A": (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_approach, a_grasp, a_lift, hold),
-    "B": (b_touch, b_squeeze, b_lift, hold),
+    "B": (b_preapproach, b_touch, b_squeeze, b_lift, hold),
     "C": (c_touch, c_squeeze, c_release_both, c_straddle, c_pinch, c_lift, hold),
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""
