@@ -325,9 +325,22 @@ def _a_grasp_geometry(w: World, ctx: dict):
     approach = _p(-np.cos(yaw), dy * np.sin(yaw), 0.0)
     yc = float(w.pos[1])
     front = w.front_at(yc)
-    end = _p(front, yc, w.table_height + w.size[2] / 2) + A_INSET * approach
+    end = _p(front, yc, _a_pinch_height(w)) + A_INSET * approach
     end[0] = max(end[0], w.edge_x + A_MIN_BEYOND_EDGE)
     return arm, end, approach
+
+
+A_SHEET_TOP = 0.005  # a sheet's top above the table where it still lies flat (m)
+
+
+def _a_pinch_height(w: World) -> float:
+    """Height of the overhang where the fingers pinch.  Rigid: mid-thickness.  A sheet's overhang
+    droops over the edge, so its measured height extent is mostly that droop; the pinch point,
+    about half-way out, sits about half of it below the table top (a large mouse pad drooped
+    ~3 cm, and the fingers aimed at the old mid-extent height closed above it)."""
+    if not w.deformable:
+        return w.table_height + w.size[2] / 2
+    return w.table_height + A_SHEET_TOP / 2 - 0.5 * max(0.0, float(w.size[2]) - A_SHEET_TOP)
 
 
 def a_preapproach(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
