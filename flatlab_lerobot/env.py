@@ -25,6 +25,10 @@ material, room dressing) or ``cell`` (a ``CellConfig``); neither = the plain def
 ``task="clear_desk"`` (a scenario, ``tasks.SCENARIOS``): every reset draws a desk layout of five
 objects in one cell (``options["desk_seed"]`` picks one); the privileged state and the object cloud
 refer to the first object still on the table; set ``episode_length`` to the scenario's (1450).
+
+Domain randomization: ``reset(options={"domain": Domain(...)})`` (or its ``to_json`` dict) sets the
+arms' start posture, the object's mass and friction and the camera poses for that episode
+(:mod:`flatlab_lerobot.sim.domain`); a reset without one restores the nominal cell.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from gymnasium import spaces
 from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, load_objects
 from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
 from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
+from flatlab_lerobot.sim.domain import Domain, apply_domain
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.sim.scene import CellConfig
 from flatlab_lerobot.tasks import SCENARIOS, TASKS, task_context
@@ -226,7 +231,12 @@ class FlatLabEnv(gym.Env):
             first = self.layout.items[0]
             x, y, yaw = first.x, first.y, first.yaw
         self.placement = (float(x), float(y), float(yaw))
-        self.sim.reset(*self.placement)
+        domain = options.get("domain")
+        if isinstance(domain, dict):
+            domain = Domain.from_json(domain)
+        if domain is not None or "_domain_nominal" in self.sim.__dict__:  # a domain, or back to nominal
+            apply_domain(self.sim, domain or Domain())
+        self.sim.reset(*self.placement, home_offsets=domain.home_offsets if domain else ())
         self._task_ctx = task_context(self.task_spec, self.sim)
         self._task_done = False
         self._steps = 0

@@ -71,7 +71,10 @@ class EpisodeSource:
 
     @property
     def cameras(self) -> dict:
-        return (self.flatlab_meta or {}).get("cameras") or {}
+        """Intrinsics/extrinsics per camera in this episode (jittered cameras: the episode's pose)."""
+        from flatlab_lerobot.collect.writer import episode_cameras
+
+        return episode_cameras((self.flatlab_meta or {}).get("cameras") or {}, self.record)
 
     def has(self, key: str) -> bool:
         return key in self.features

@@ -19,7 +19,14 @@ import yaml
 from flatlab_lerobot.collect.collector import collect
 from flatlab_lerobot.collect.recipe import RecipeError, load_recipe, recipe_from_dict
 from flatlab_lerobot.collect.runner import run_episode
-from flatlab_lerobot.collect.writer import EPISODES_JSONL, META_JSON, READY, DatasetStore, depth_to_points
+from flatlab_lerobot.collect.writer import (
+    EPISODES_JSONL,
+    META_JSON,
+    READY,
+    DatasetStore,
+    depth_to_points,
+    episode_cameras,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -118,6 +125,11 @@ def test_shipped_recipes_load():
         ({"video": {"preset": "warp"}}, "video.preset"),
         ({"video": {"depth_preset": 3}}, "video.depth_preset"),
         ({"video": {"vcodec": "libsvtav1", "preset": "fast"}}, "video.preset"),
+        ({"randomization": {"joint_noise": 2.0}}, "randomization.joint_noise"),
+        ({"randomization": {"mass_scale": [1.2, 0.8]}}, "randomization.mass_scale"),
+        ({"randomization": {"friction_scale": "wet"}}, "randomization.friction_scale"),
+        ({"randomization": {"camera_rot_jitter_deg": -1}}, "randomization.camera_rot_jitter_deg"),
+        ({"randomization": {"light": 1}}, "randomization.light"),
     ],
 )
 def test_malformed_recipe_names_file_and_field(tmp_path, over, field):
@@ -228,6 +240,54 @@ def test_camera_meta_rebuilds_clouds_from_depth(tiny):
             a = depth_to_points(np.where(hit, dec_m, 0.0), meta["cameras"][cam])
             b = env.rig.depth_to_points(np.where(hit, true_m, np.inf), cam, env.sim.data)
             assert a.shape == b.shape and np.median(np.linalg.norm(a - b, axis=1)) < 0.02
+    finally:
+        env.close()
+
+
+JITTER = {"joint_noise": 0.08, "camera_pos_jitter": 0.02, "camera_rot_jitter_deg": 2.0,
+          "mass_scale": [0.7, 1.3], "friction_scale": [0.7, 1.3]}  # fmt: skip
+
+
+def test_domain_randomization_is_recorded_applied_and_rebuilds_clouds(tmp_path):
+    """Start posture, object mass/friction and camera poses are drawn per episode seed, recorded
+    with the episode, really set in the sim, and the recorded camera poses back-project the
+    episode's depth exactly as the sim's rig does."""
+    from flatlab_lerobot.collect.runner import make_env, sample_placement
+    from flatlab_lerobot.sim.domain import Domain
+    from flatlab_lerobot.sim.robot import HOME_Q
+
+    recipe = load_recipe(write_recipe(tmp_path / "t.yaml", episodes=2, max_steps=3, randomization=JITTER))
+    assert recipe.randomization.domain(7, ["front"]) == recipe.randomization.domain(7, ["front"])
+    collect(recipe, tmp_path / "out", progress=False)
+    root = tmp_path / "out" / "t"
+    recs = DatasetStore(recipe, tmp_path / "out").records()
+    meta = json.loads((root / META_JSON).read_text())
+    doms = [r["domain"] for r in recs]
+    assert doms[0] != doms[1] and all(0.7 <= d["mass_scale"] <= 1.3 for d in doms)
+    rows = table(root)
+    for r, d in zip(recs, doms):  # the arms start where the domain put them
+        first = rows[rows.episode_index == r["dataset_episode_index"]].iloc[0]["observation.state"]
+        home = np.r_[first[:7], first[8:15]]
+        np.testing.assert_allclose(home - np.r_[HOME_Q, HOME_Q], d["home_offsets"], atol=0.02)
+    rec, dom = recs[1], Domain.from_json(doms[1])
+    cams = episode_cameras(meta["cameras"], rec)
+    for c in ("front", "top"):
+        assert not np.allclose(cams[c]["cam_to_world"], meta["cameras"][c]["cam_to_world"])
+    env = make_env(recipe, "ref_box")
+    try:
+        env.reset(seed=rec["seed"], options={"placement": sample_placement(recipe, rec["seed"]), "domain": dom})
+        m, o = env.sim.model, env.sim.objects[0]
+        nominal = env.sim._domain_nominal
+        assert m.body_mass[o.body] == pytest.approx(nominal.body_mass[o.body] * dom.mass_scale)
+        assert m.geom_friction[o.geoms[0], 0] == pytest.approx(nominal.geom_friction[o.geoms[0], 0] * dom.friction_scale)
+        for c in ("front", "top"):
+            depth = env.rig.depth(env.sim.data, c)
+            ours = depth_to_points(depth, cams[c])
+            np.testing.assert_allclose(ours, env.rig.depth_to_points(depth, c, env.sim.data), atol=1e-6)
+            assert not np.allclose(ours, depth_to_points(depth, meta["cameras"][c]), atol=1e-3)
+        env.reset(seed=0)  # no domain: back to the nominal cell
+        assert m.body_mass[o.body] == nominal.body_mass[o.body]
+        np.testing.assert_array_equal(m.cam_pos, nominal.cam_pos)
     finally:
         env.close()
 

@@ -31,6 +31,8 @@ from typing import Any
 
 import yaml
 
+from flatlab_lerobot.sim.domain import Domain, sample_domain
+
 MODALITIES = ("rgb", "depth", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
 DEFAULT_MODALITIES = ("rgb", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
 CAMERAS = ("front", "top", "left", "right")
@@ -47,6 +49,19 @@ class RecipeError(ValueError):
 class Randomization:
     xy_range: float = 0.05  # object planar offset, uniform in ±xy_range (m)
     yaw_range_deg: float = 30.0  # object yaw, uniform in ±yaw_range_deg
+    # The episode's domain (flatlab_lerobot.sim.domain; recorded per episode in meta/flatlab_episodes.jsonl):
+    joint_noise: float = 0.0  # robot start posture: every arm joint uniform in ±joint_noise rad off home
+    camera_pos_jitter: float = 0.0  # every camera moved uniform in ±this per world axis (m) ...
+    camera_rot_jitter_deg: float = 0.0  # ... and turned uniform in ±this about each of its axes (deg)
+    mass_scale: tuple[float, float] = (1.0, 1.0)  # object mass (and inertia) x uniform in [lo, hi]
+    friction_scale: tuple[float, float] = (1.0, 1.0)  # object sliding friction x uniform in [lo, hi]
+
+    def domain(self, seed: int, cameras) -> Domain:
+        """The episode's domain: a function of the episode seed (a stream apart from the placement's)."""
+        return sample_domain(
+            seed, cameras, self.joint_noise, self.mass_scale, self.friction_scale,
+            self.camera_pos_jitter, self.camera_rot_jitter_deg,
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -116,6 +131,10 @@ class Recipe:
         for k in ("preset", "depth_preset"):  # added later: unset keeps older fingerprints valid
             if d["video"].get(k) is None:
                 d["video"].pop(k, None)
+        nominal = dataclasses.asdict(Randomization())
+        for k in ("joint_noise", "camera_pos_jitter", "camera_rot_jitter_deg", "mass_scale", "friction_scale"):
+            if d["randomization"].get(k) == nominal[k]:  # added later: the nominal value keeps older fingerprints
+                d["randomization"].pop(k, None)
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -140,6 +159,18 @@ class _V:
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             raise self.err(fld, f"must be a number{_range(lo, hi)}, got {value!r}")
         return float(value)
+
+    def interval(self, fld, value, lo, hi) -> tuple[float, float]:
+        """[low, high] with lo <= low <= high <= hi (a single number means [x, x])."""
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value, value]
+        bad = f"must be [low, high] with {lo} <= low <= high <= {hi}, got {value!r}"
+        if not isinstance(value, list) or len(value) != 2:
+            raise self.err(fld, bad)
+        a, b = (self.number(fld, x, lo, hi) for x in value)
+        if a > b:
+            raise self.err(fld, bad)
+        return (a, b)
 
     def string(self, fld, value) -> str:
         if not isinstance(value, str) or not value.strip():
@@ -253,10 +284,18 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
         kw["n_object_points"] = v.integer("n_object_points", raw["n_object_points"], 1, 1_000_000)
     if raw.get("pointcloud_cameras") is not None:
         kw["pointcloud_cameras"] = v.str_list("pointcloud_cameras", raw["pointcloud_cameras"], CAMERAS)
-    r = v.mapping("randomization", raw.get("randomization"), {"xy_range", "yaw_range_deg"})
+    rand_keys = {f.name for f in dataclasses.fields(Randomization)}
+    r = v.mapping("randomization", raw.get("randomization"), rand_keys)
     kw["randomization"] = Randomization(
         xy_range=v.number("randomization.xy_range", r.get("xy_range", 0.05), 0.0, 0.3),
         yaw_range_deg=v.number("randomization.yaw_range_deg", r.get("yaw_range_deg", 30.0), 0.0, 180.0),
+        joint_noise=v.number("randomization.joint_noise", r.get("joint_noise", 0.0), 0.0, 0.5),
+        camera_pos_jitter=v.number("randomization.camera_pos_jitter", r.get("camera_pos_jitter", 0.0), 0.0, 0.1),
+        camera_rot_jitter_deg=v.number(
+            "randomization.camera_rot_jitter_deg", r.get("camera_rot_jitter_deg", 0.0), 0.0, 15.0
+        ),
+        mass_scale=v.interval("randomization.mass_scale", r.get("mass_scale", [1.0, 1.0]), 0.1, 10.0),
+        friction_scale=v.interval("randomization.friction_scale", r.get("friction_scale", [1.0, 1.0]), 0.1, 10.0),
     )
     vid = v.mapping("video", raw.get("video"), {"use_videos", "vcodec", "crf", "preset", "depth_preset"})
     crf = vid.get("crf")

@@ -46,6 +46,7 @@ class EpisodeResult:
     # the frames then no longer hold those arrays.
     videos: dict | None = None
     timing: dict = field(default_factory=dict)  # seconds: build, reset, loop (expert + step + frames), encode
+    domain: dict = field(default_factory=dict)  # the episode's Domain.to_json (+ jittered cameras' cam_to_world)
 
     def record(self) -> dict:
         return {
@@ -61,7 +62,15 @@ class EpisodeResult:
             "sim_time_s": round(self.sim_time_s, 3),
             "wall_time_s": round(self.wall_time_s, 3),
             "stages": self.stages,
+            "domain": self.domain,
         }
+
+
+def _cam_to_world(env, cam: str) -> list:
+    pos, R = env.rig.extrinsics(env.sim.data, cam)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, pos
+    return T.tolist()
 
 
 def sample_placement(recipe: Recipe, seed: int) -> tuple[float, float, float]:
@@ -165,7 +174,11 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
         if own_env:
             env = make_env(recipe, object_id)
         t_reset = time.perf_counter()
-        obs, info = env.reset(seed=seed, options={"placement": placement})
+        domain = recipe.randomization.domain(seed, sorted(env.rig.camera_names) if env.rig is not None else ())
+        res.domain = domain.to_json()
+        obs, info = env.reset(seed=seed, options={"placement": placement, "domain": domain})
+        if env.rig is not None and domain.camera_offsets:  # where the jittered cameras were
+            res.domain["cam_to_world"] = {c: _cam_to_world(env, c) for c in sorted(domain.camera_offsets)}
         t_loop = time.perf_counter()
         expert = Expert(env.cell, recipe.control_dt)
         holder = {"obs": obs}

@@ -146,6 +146,14 @@ CAMERA_CONVENTION = (
 )
 
 
+def episode_cameras(cameras: dict, record: dict | None) -> dict:
+    """The ``meta/flatlab.json`` cameras as they were in one episode: a recipe with camera jitter
+    records each episode's ``cam_to_world`` in its ``meta/flatlab_episodes.jsonl`` line
+    (``domain.cam_to_world``), which replaces the nominal extrinsics."""
+    moved = ((record or {}).get("domain") or {}).get("cam_to_world") or {}
+    return {c: {**m, "cam_to_world": moved[c]} if c in moved else m for c, m in cameras.items()}
+
+
 def depth_to_points(depth_m: np.ndarray, cam: dict) -> np.ndarray:
     """World points (K, 3) from an (H, W) depth map in metres and a ``meta/flatlab.json`` camera."""
     depth_m = np.asarray(depth_m, dtype=np.float64).squeeze()

@@ -154,15 +154,22 @@ class FlatLabSim:
         self._time_held[:] = 0.0
 
     # ------------------------------------------------------------------ reset
-    def reset(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0, settle: float = 0.3) -> None:
+    def reset(
+        self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0, settle: float = 0.3, home_offsets: Sequence[float] = ()
+    ) -> None:
         """Home both arms (grippers open), place the object at (x, y, yaw) on the table and the
-        clutter at ``clutter_poses``, settle.  The target becomes ``objects[0]``."""
+        clutter at ``clutter_poses``, settle.  The target becomes ``objects[0]``.  ``home_offsets``
+        (14,) rad: the arms start (and hold) that far from home, within their joint limits."""
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
-        for idx in self.arms.values():
-            d.qpos[idx.qpos] = HOME_Q
+        offsets = np.zeros(14) if len(home_offsets) == 0 else np.asarray(home_offsets, float).reshape(14)
+        homes = []
+        for i, idx in enumerate(self.arms.values()):
+            lo, hi = m.actuator_ctrlrange[idx.ctrl[:7], 0], m.actuator_ctrlrange[idx.ctrl[:7], 1]
+            homes.append(np.clip(HOME_Q + offsets[7 * i : 7 * i + 7], lo, hi))
+            d.qpos[idx.qpos] = homes[-1]
             d.qpos[idx.finger_qpos] = GRIPPER_MAX_WIDTH / 2
-        self._target = np.concatenate([np.r_[HOME_Q, GRIPPER_MAX_WIDTH]] * 2)
+        self._target = np.concatenate([np.r_[q, GRIPPER_MAX_WIDTH] for q in homes])
         d.ctrl[self._ctrl_ids()] = self._target
         self.set_target(0)
         for o, (px, py, pyaw) in zip(self.objects, [(x, y, yaw), *self.clutter_poses]):
