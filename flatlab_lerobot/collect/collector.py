@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from flatlab_lerobot.collect.recipe import Recipe, RecipeError, load_recipe
-from flatlab_lerobot.collect.runner import EpisodeResult, run_episode
+from flatlab_lerobot.collect.runner import EnvCache, EpisodeResult, run_episode
 from flatlab_lerobot.collect.writer import DatasetMismatch, DatasetStore, encode_videos, stream_specs
 
 
@@ -40,12 +40,15 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kB
 
 
+_ENVS = EnvCache()  # this process's envs, reused across its episodes
+
+
 def episode_task(recipe: Recipe, episode_index: int, workdir: str, specs: dict) -> tuple[EpisodeResult, dict]:
     """One episode as a worker runs it: simulate, then encode the camera streams into ``workdir``
     (``specs``: :func:`~flatlab_lerobot.collect.writer.stream_specs`).  Returns the result (frames
     without the video arrays) and the worker's pid and peak RSS."""
     cpu0 = time.process_time()
-    res = run_episode(recipe, episode_index)
+    res = run_episode(recipe, episode_index, cache=_ENVS)
     t0 = time.perf_counter()
     encode_videos(res, recipe, Path(workdir), specs)
     res.timing["encode"] = time.perf_counter() - t0
@@ -125,6 +128,7 @@ class EpisodesInOrder:
     def close(self) -> None:
         ex, self.ex = self.ex, None
         if ex is None:
+            _ENVS.close()  # in-process episodes: this process's envs are not needed any more
             return
         if not self.pending:
             ex.shutdown(wait=True)

@@ -148,13 +148,49 @@ def _frame(recipe: Recipe, env, obs: dict, action: np.ndarray, stage: str, stage
     return f
 
 
-def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
+class EnvCache:
+    """The last few envs a process built, by object and the recipe fields ``make_env`` reads.
+
+    Building an env compiles the model and opens a GL context for its renderers (~0.12 s + the
+    first render's ~0.15 s at 224 px, about a tenth of a rigid episode's cost).  ``reset`` puts
+    everything that varies back (state, seeds, the domain from the nominal model), so an episode
+    is the same in a reused env as in a fresh one (tests/test_collect.py compares 1 and 2 workers)."""
+
+    def __init__(self, size: int = 2):
+        self.size = size
+        self._envs: dict = {}
+
+    @staticmethod
+    def _key(recipe: Recipe, object_id: str) -> tuple:
+        r = recipe
+        return (object_id, r.cameras, r.pointcloud_cameras, r.image_size, r.n_points, r.n_object_points,
+                r.randomization.xy_range, r.randomization.yaw_range_deg, r.max_steps, r.control_dt,
+                r.has("rgb"), r.has("pointcloud") or r.has("object_pointcloud"))  # fmt: skip
+
+    def get(self, recipe: Recipe, object_id: str):
+        key = self._key(recipe, object_id)
+        env = self._envs.pop(key, None)
+        if env is None:
+            env = make_env(recipe, object_id)
+        self._envs[key] = env  # most recently used last
+        while len(self._envs) > self.size:
+            self._envs.pop(next(iter(self._envs))).close()
+        return env
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+
+def run_episode(recipe: Recipe, episode_index: int, env=None, cache: EnvCache | None = None) -> EpisodeResult:
     """Run the scripted expert for episode ``episode_index`` of ``recipe`` and return its frames.
 
     Never raises for a failed demo: physics divergence, expert errors and timeouts all end the
     episode with ``success=False`` and a ``failure_reason``.  (An error *before the first frame*
     -- e.g. divergence while settling -- gives an episode with no frames, which the collector
-    records as skipped.)  ``env``: an env to reuse (tests); by default a fresh one."""
+    records as skipped.)  ``env``: an env to reuse (tests); ``cache``: an :class:`EnvCache` to take
+    it from (collection workers); by default a fresh one."""
     from flatlab_lerobot.env import TASK_DESCRIPTIONS
     from flatlab_lerobot.strategies import Expert
 
@@ -165,7 +201,7 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
     placement = sample_placement(recipe, seed)
     res = EpisodeResult(episode_index, seed, object_id, strategy, task, placement, False, "")
     t0 = time.perf_counter()
-    own_env = env is None
+    own_env = env is None and cache is None
     frames: list[dict] = []
     reason = ""
     info: dict = {}
@@ -173,6 +209,8 @@ def run_episode(recipe: Recipe, episode_index: int, env=None) -> EpisodeResult:
     try:
         if own_env:
             env = make_env(recipe, object_id)
+        elif env is None:
+            env = cache.get(recipe, object_id)
         t_reset = time.perf_counter()
         domain = recipe.randomization.domain(seed, sorted(env.rig.camera_names) if env.rig is not None else ())
         res.domain = domain.to_json()

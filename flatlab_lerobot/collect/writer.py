@@ -190,9 +190,10 @@ def encoders(recipe: Recipe):
         kw["preset"] = v.preset
     # lerobot's depth default (lossless 12-bit HEVC), minus x265's per-video banner on stderr and
     # its thread pool (one core per worker; under contention the pool's hand-offs cost more than
-    # they gain)
+    # they gain), with 16-px coding tree units: at 224 px, 100 frames, 43 % less CPU (0.24 vs
+    # 0.42 s per stream) for 3 % larger files -- lossless, so the decoded depth is the same.
     depth = DepthEncoderConfig(
-        preset=v.depth_preset, extra_options={"x265-params": "lossless=1:log-level=error:pools=none"}
+        preset=v.depth_preset, extra_options={"x265-params": "lossless=1:ctu=16:log-level=error:pools=none"}
     )
     return RGBEncoderConfig(**kw), depth
 
