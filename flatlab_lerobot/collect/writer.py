@@ -855,6 +855,7 @@ def render_card(
         "splits": ", ".join(splits),
         "strategy": "per object (catalog label)" if recipe.strategy == "auto" else recipe.strategy,
         "seed": recipe.seed,
+        "randomization": _randomization_text(recipe),
         "episodes_attempted": n_att,
         "episodes_saved": n_saved,
         "episodes_successful": n_ok,
@@ -879,6 +880,20 @@ def render_card(
         return template.format(**values)
     except (KeyError, IndexError, ValueError) as exc:
         raise RecipeError(f"{p}: bad placeholder in the card template: {exc}") from exc
+
+
+def _randomization_text(recipe: Recipe) -> str:
+    """The recipe's randomization ranges in words (the card's table row)."""
+    r = recipe.randomization
+    parts = [f"object ±{r.xy_range * 100:g} cm, yaw ±{r.yaw_range_deg:g}°"]
+    if r.joint_noise:
+        parts.append(f"arm joints ±{r.joint_noise:g} rad")
+    if r.camera_pos_jitter or r.camera_rot_jitter_deg:
+        parts.append(f"cameras ±{r.camera_pos_jitter * 100:g} cm, ±{r.camera_rot_jitter_deg:g}°")
+    for name, (lo, hi) in (("mass", r.mass_scale), ("friction", r.friction_scale)):
+        if (lo, hi) != (1.0, 1.0):
+            parts.append(f"{name} x [{lo:g}, {hi:g}]")
+    return "; ".join(parts) + " (per episode: `domain` in `meta/flatlab_episodes.jsonl`)"
 
 
 def _yaml(d: dict) -> str:
