@@ -234,8 +234,7 @@ class FlatLabEnv(gym.Env):
         domain = options.get("domain")
         if isinstance(domain, dict):
             domain = Domain.from_json(domain)
-        if domain is not None or "_domain_nominal" in self.sim.__dict__:  # a domain, or back to nominal
-            apply_domain(self.sim, domain or Domain())
+        apply_domain(self.sim, domain)  # None: back to the nominal cell
         self.sim.reset(*self.placement, home_offsets=domain.home_offsets if domain else ())
         self._task_ctx = task_context(self.task_spec, self.sim)
         self._task_done = False

@@ -79,11 +79,16 @@ class _Nominal:
     cam_quat: np.ndarray
 
 
-def apply_domain(sim, domain: Domain) -> None:
+def apply_domain(sim, domain: Domain | None) -> None:
     """Set ``domain``'s object mass/friction and camera poses on ``sim``'s model, from the nominal
-    values (the start posture is ``sim.reset``'s ``home_offsets``).  Call before ``sim.reset``."""
+    values (the start posture is ``sim.reset``'s ``home_offsets``).  Call before ``sim.reset``.
+    ``None``: back to the nominal model (nothing to do when no domain was ever applied)."""
     m = sim.model
     nom = sim.__dict__.get("_domain_nominal")
+    if domain is None:
+        if nom is None:
+            return
+        domain = Domain()
     if nom is None:
         nom = sim._domain_nominal = _Nominal(
             m.body_mass.copy(), m.body_inertia.copy(), m.geom_friction.copy(), m.flex_friction.copy(),
