@@ -38,18 +38,25 @@ def test_samples_match_the_primitives_the_expert_ran():
     res, steps = _trace(_cfg(capture="start"))
     assert res.success, res.failure_reason
     df = pd.DataFrame(res.samples)
-    # B has no "move" primitive: a primitive ran when a step carried its own name (not the transit)
-    ran = {}
+    # A primitive starts at the first step that carries its own name (not the transit's "move").
+    # B's first primitive is itself a "move" (both hands above their touch start): every step of it
+    # is named "move", so it starts its own duration's worth of steps before its last step.
+    by_index: dict[int, list[int]] = {}
     for k, s in enumerate(steps):
-        if s["stage"] != "move" and s["index"] not in ran:
-            ran[s["index"]] = (k, s["stage"])
+        by_index.setdefault(s["index"], []).append(k)
+    durations = dict(zip(df.primitive_index, df.duration_s))
+    ran = {}
+    for i, ks in sorted(by_index.items()):
+        named = [k for k in ks if steps[k]["stage"] != "move"]
+        ran[i] = (named[0], steps[named[0]]["stage"]) if named else (ks[-1] - round(durations[i] / 0.1) + 1, "move")
     assert list(df.primitive_index) == sorted(ran) and list(df.primitive) == [ran[i][1] for i in sorted(ran)]
+    assert list(df.primitive)[0] == "move"  # B: both hands above their touch start first
     assert set(df.primitive) >= {"touch", "squeeze", "lift"}
     expert = Expert(steps[0]["cell"], 0.1)
     checked_free = 0
     for _, row in df.iterrows():
         k0 = ran[row.primitive_index][0]
-        last = max(k for k, s in enumerate(steps) if s["index"] == row.primitive_index and s["stage"] != "move")
+        last = by_index[row.primitive_index][-1]
         assert row.step == k0
         q_end = np.r_[steps[last]["action"][:7], steps[last]["action"][8:15]]
         fk_end = expert.fk(q_end)
