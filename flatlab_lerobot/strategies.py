@@ -9,8 +9,8 @@ moment: after the slide of strategy A, the grasp is aimed at where the book real
 A: press the object and slide it until it overhangs the usable edge; grasp the overhang from
    the side (fingers above and below it); lift.
 B: two arms touch opposite sides, squeeze, lift together.
-C: two closed grippers press the sheet and slide towards each other to raise a fold; one
-   gripper straddles the fold and pinches it while the other still pins the sheet; lift.
+C: two open grippers press the sheet and slide towards each other to raise a fold; both let go
+   (the left one backs away), the right one straddles the fold, pinches it and lifts.
 """
 
 from __future__ import annotations
@@ -115,6 +115,7 @@ IK_SEEDS = [
 IK_SEEDS += [s * np.array([-1, 1, -1, 1, -1, 1, -1]) for s in IK_SEEDS]  # mirror images
 """Seed postures for IK of far-away goals (differential IK is local)."""
 LINK_CLEARANCE = 0.07  # an arm link's frame must stay this far above the table top (capsule radius + margin, m)
+TRANSIT_SWEEP = 0.05  # a transit whose hand strays further than this from the straight line loses to one that does not (m)
 
 
 class Expert:
@@ -146,32 +147,50 @@ class Expert:
         """Joint targets reaching ``targets``.  ``far``: the goal may be far from ``q14`` (a transit),
         so canned seed postures are tried too.  A reaching solution is *clear* when the moving
         arms' elbow/forearm/wrist stay above the table as far as the goal allows (a goal near the
-        table top necessarily brings the wrist down to it); among clear solutions the one nearest
-        to ``q14`` in joint space wins (the current posture first: a joint-space transit between
-        far-apart branches sweeps the arm through the workspace and knocks objects over), else the
-        reaching solution whose links stay highest."""
+        table top necessarily brings the wrist down to it); among clear solutions whose transit
+        keeps the hands within TRANSIT_SWEEP of the straight line, the one nearest to ``q14`` in
+        joint space wins (the current posture first: a joint-space transit between far-apart
+        branches sweeps the arm through the workspace and knocks objects over); then the clear one
+        that strays least; else the reaching solution whose links stay highest."""
         seeds = [q14]
         if far:
             seeds += [np.r_[s if "left" in targets else q14[:7], s if "right" in targets else q14[7:]] for s in IK_SEEDS]
             lowest_goal = min(float(t[0][2]) for t in targets.values()) - self.cell.table_height
             need = min(0.0, lowest_goal - LINK_CLEARANCE) - 0.01
-        best, best_key = None, (3, np.inf)
+        best, best_key = None, (3, 0, np.inf)
         for seed in seeds:
             self._set(seed)
             q, err = self._ik.solve(self.data.qpos, targets, iterations=20 if not far else 150)
             if err >= 5e-3:
-                key = (2, err)
+                key = (2, 0, err)
             elif not far:
-                key = (0, 0.0)
+                key = (0, 0, 0.0)
             else:
                 clear = self._link_clearance(q, targets)
-                moved = np.concatenate([q[self.arms[a].qpos] for a in ARMS]) - q14
-                key = (0, float(np.abs(moved).max())) if clear >= need else (1, -clear)
+                q_new = np.concatenate([q[self.arms[a].qpos] for a in ARMS])
+                if clear < need:
+                    key = (1, 0, -clear)
+                else:
+                    sweep = self._transit_sweep(q14, q_new, targets)
+                    key = (0, 0, float(np.abs(q_new - q14).max())) if sweep <= TRANSIT_SWEEP else (0, 1, sweep)
             if key < best_key:
                 best, best_key = q, key
-            if key[0] == 0 and seed is q14:
+            if key[:2] == (0, 0) and seed is q14:
                 break
         return np.concatenate([best[self.arms[a].qpos] for a in ARMS])
+
+    def _transit_sweep(self, q_from: np.ndarray, q_to: np.ndarray, targets) -> float:
+        """How far the moving hands stray from the straight line between their start and goal
+        (m) along the joint-space transit ``q_from`` -> ``q_to`` (the runner's smooth profile)."""
+        start, goal = self.fk(q_from), self.fk(q_to)
+        worst = 0.0
+        for s in np.linspace(0.0, 1.0, 11)[1:-1]:
+            now = self.fk(q_from + (q_to - q_from) * (0.5 - 0.5 * np.cos(np.pi * s)))
+            for a in targets:
+                a0, d = start[a][0], goal[a][0] - start[a][0]
+                t = float(np.clip(np.dot(now[a][0] - a0, d) / max(float(np.dot(d, d)), 1e-12), 0.0, 1.0))
+                worst = max(worst, float(np.linalg.norm(now[a][0] - (a0 + t * d))))
+        return worst
 
     def _link_clearance(self, qpos: np.ndarray, targets) -> float:
         """Lowest height of the moving arms' elbow/forearm/wrist bodies above the table top, less a
