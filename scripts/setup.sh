@@ -17,6 +17,9 @@ for c in "${candidates[@]}"; do
 done
 [ -n "$py" ] || { echo "setup: Python 3.12 not found (set PYTHON=/path/to/python3.12)" >&2; exit 1; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
+# A CI run once ended in "No space left on device" half-way through torch's CUDA wheels: say so up front.
+avail_kb=$(df -Pk . | awk 'NR==2 {print $4}')
+[ "${avail_kb:-0}" -ge 8000000 ] || echo "setup: warning: only $((avail_kb / 1024)) MB free here; the install needs about 7 GB" >&2
 # torch pulls several GB of CUDA wheels from PyPI; a dropped connection mid-download
 # (seen in CI: nvidia-cublas stuck at 289 of 423 MB) must not fail the whole setup.
 # pip resumes a broken download itself (PIP_RESUME_RETRIES); a failed install is
@@ -26,7 +29,7 @@ pipi() {
   local attempt
   for attempt in 1 2 3; do
     .venv/bin/python -m pip install -q "$@" && return 0
-    echo "setup: pip install $* failed (attempt $attempt of 3)" >&2
+    echo "setup: pip install $* failed (attempt $attempt of 3); free disk: $(df -h --output=avail . | tail -n 1 | tr -d ' ') here, $(df -h --output=avail "${TMPDIR:-/tmp}" | tail -n 1 | tr -d ' ') in ${TMPDIR:-/tmp} (the install needs about 7 GB)" >&2
     [ "$attempt" = 3 ] || sleep $((attempt * 15))
   done
   return 1
