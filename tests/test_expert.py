@@ -28,7 +28,10 @@ def test_strategy_a_lifts_the_book():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("object_id,strategy", [("ref_box", "A"), ("ref_towel", "A"), ("ref_towel", "B")])
+# Not A on the 25 cm reference towel: since the sheet pinch/lift it pushes the towel to the edge in
+# one piece and lifts it by the droop at seed 1 (a real lift, seen in the frames; washcloth-sized
+# towels are labelled A by the grounded labels). A 34x18 cm silk scarf crumples instead (0/3).
+@pytest.mark.parametrize("object_id,strategy", [("ref_box", "A"), ("scarf_silk_blue", "A"), ("ref_towel", "B")])
 def test_wrong_strategies_fail(object_id, strategy):
     seeds = range(3)
     assert not any(_rate(object_id, strategy, seeds))
