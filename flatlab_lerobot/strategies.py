@@ -463,9 +463,11 @@ def b_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 # ---------------------------------------------------------------------------- strategy C
 C_PRESS_TIP_Z = 0.001  # finger tips this far above the table while pressing cloth (m)
 C_START_FRAC = 0.42  # press points at +-this fraction of the sheet's extent from its centre
-C_END_HALF_GAP = 0.05  # the pressing hands stop this far from the centre (m)
+C_END_HALF_GAP = 0.025  # the pressing hands stop this far from the centre (m)
 C_PINCH_OPEN = 0.06  # gripper opening when straddling the fold (m)
 C_PRESS_OPEN = GRIPPER_MAX_WIDTH  # pressing with open fingers: no cloth gets caught between them
+C_TILT = 20.0  # pressing hands lean outward by this much (deg): upright, their wrists collide when 5 cm apart
+C_TILT_LIFT = 0.01  # a leaning finger's lower edge is about this far (m) times sin(tilt) below its tip centre
 C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
 
 
@@ -473,7 +475,10 @@ def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = F
     u, _ = w.squeeze_axis()
     p = w.pos + s * dist * u
     f = u if finger_along_u else np.cross(_p(0, 0, 1), u)
-    return _p(p[0], p[1], w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP + dz), tcp_rotation(DOWN, f)
+    th = np.radians(C_TILT)
+    approach = DOWN * np.cos(th) - s * np.sin(th) * u
+    tip = _p(p[0], p[1], w.table_height + C_PRESS_TIP_Z + C_TILT_LIFT * np.sin(th) + dz)
+    return tip - approach * FINGER_TIP_BELOW_TCP, tcp_rotation(approach, f)
 
 
 def c_touch(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
