@@ -9,8 +9,8 @@ moment: after the slide of strategy A, the grasp is aimed at where the book real
 A: press the object and slide it until it overhangs the usable edge; grasp the overhang from
    the side (fingers above and below it); lift.
 B: two arms touch opposite sides, squeeze, lift together.
-C: two open grippers press the sheet and slide towards each other to raise a fold; both let go
-   (the left one backs away), the right one straddles the fold, pinches it and lifts.
+C: two open grippers, leaning outward, press the sheet and slide towards each other to raise a
+   fold; both let go (the left one backs away), the right one straddles the fold, pinches it and lifts.
 """
 
 from __future__ import annotations
