@@ -471,10 +471,12 @@ C_TILT_LIFT = 0.01  # a leaning finger's lower edge is about this far (m) times 
 C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
 
 
-def _c_pose(w: World, s: float, dist: float, dz: float, finger_along_u: bool = False):
+def _c_pose(w: World, s: float, dist: float, dz: float):
+    """Pressing pose of the hand on side ``s`` (+1 left, -1 right) of the sheet centre, ``dist`` out
+    along the squeeze axis, fingers across it, leaning C_TILT outward, tips ``dz`` above the press."""
     u, _ = w.squeeze_axis()
     p = w.pos + s * dist * u
-    f = u if finger_along_u else np.cross(_p(0, 0, 1), u)
+    f = np.cross(_p(0, 0, 1), u)
     th = np.radians(C_TILT)
     approach = DOWN * np.cos(th) - s * np.sin(th) * u
     tip = _p(p[0], p[1], w.table_height + C_PRESS_TIP_Z + C_TILT_LIFT * np.sin(th) + dz)
