@@ -468,7 +468,9 @@ C_PINCH_OPEN = 0.06  # gripper opening when straddling the fold (m)
 C_PRESS_OPEN = GRIPPER_MAX_WIDTH  # pressing with open fingers: no cloth gets caught between them
 C_TILT = 20.0  # pressing hands lean outward by this much (deg): upright, their wrists collide when 5 cm apart
 C_TILT_LIFT = 0.01  # a leaning finger's lower edge is about this far (m) times sin(tilt) below its tip centre
-C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand
+C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand ...
+C_LEFT_OFF, C_LEFT_OFF_UP = 0.05, 0.02  # ... first this far outward and up (m), off the ridge's wall, ...
+C_LEFT_UP = 0.15  # ... then straight up to this height above the press (m), then outward
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float):
@@ -501,28 +503,45 @@ def c_squeeze(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
         start = poses[a]
         end_xy = w.pos + s * C_END_HALF_GAP * u
         motions[a] = ArmMotion(start, (_p(end_xy[0], end_xy[1], start[0][2]), start[1]), (C_PRESS_OPEN,) * 2)
-    ctx["c_ridge"] = w.pos.copy()  # the ridge rises midway between the pressing hands
     return Primitive("squeeze", motions, 1.6)
 
 
 def c_release_both(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    """Both hands let go of the squeezed sheet (the ridge stays, held by table friction); the left
-    hand gets out of the way (up and outward) so the right hand can reach across the ridge."""
+    """Both hands let go of the squeezed sheet (the ridge stays, held by table friction).  The left
+    hand first moves its leaning finger tips 5 cm outward and 2 cm up, off the ridge's wall (then
+    :func:`c_left_away`, :func:`c_left_out`): backing away 15 cm up and out in one move, the tips
+    dragged a heavy towel's wall up with them and flattened the fold (seen in frames)."""
     u, _ = w.squeeze_axis()
     return Primitive(
         "release",
         {
             "right": ArmMotion(poses["right"], _rel(poses["right"], (0, 0, 0.06)), (C_PRESS_OPEN, C_PINCH_OPEN)),
-            "left": ArmMotion(poses["left"], _rel(poses["left"], C_LEFT_AWAY * u + _p(0, 0, 0.15)), (C_PRESS_OPEN,) * 2),
+            "left": ArmMotion(poses["left"], _rel(poses["left"], C_LEFT_OFF * u + _p(0, 0, C_LEFT_OFF_UP)), (C_PRESS_OPEN,) * 2),
         },
         0.6,
     )
 
 
-def c_straddle(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
-    """Right gripper, open, fingers either side of the fold (between the pressing hands)."""
+def c_left_away(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """The left hand, off the ridge, rises straight up: moving outward while low, it carried a
+    skirt's tall ridge away with it (seen in frames)."""
+    rise = _p(0, 0, C_LEFT_UP - C_LEFT_OFF_UP)
+    return Primitive("move", {"left": ArmMotion(poses["left"], _rel(poses["left"], rise), (C_PRESS_OPEN,) * 2)}, 0.6)
+
+
+def c_left_out(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """... then moves outward, clear of the pinching hand."""
     u, _ = w.squeeze_axis()
-    centre = ctx["c_ridge"]
+    out = (C_LEFT_AWAY - C_LEFT_OFF) * u
+    return Primitive("move", {"left": ArmMotion(poses["left"], _rel(poses["left"], out), (C_PRESS_OPEN,) * 2)}, 0.5)
+
+
+def c_straddle(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
+    """Right gripper, open, fingers either side of the fold, at the sheet's centre as it is now: a
+    tall ridge (a skirt's) can topple sideways once the left hand leaves it and drag the sheet a
+    few cm along; the fold goes with it (seen in frames)."""
+    u, _ = w.squeeze_axis()
+    centre = w.pos
     R = tcp_rotation(DOWN, u)
     z = w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
     start = (_p(centre[0], centre[1], z + 0.06), R)
@@ -552,6 +571,6 @@ def c_lift(ex: Expert, w: World, poses, grip, ctx) -> Primitive:
 STRATEGIES = {
     "A": (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_approach, a_grasp, a_lift, hold),
     "B": (b_preapproach, b_touch, b_squeeze, b_lift, hold),
-    "C": (c_touch, c_squeeze, c_release_both, c_straddle, c_pinch, c_lift, hold),
+    "C": (c_touch, c_squeeze, c_release_both, c_left_away, c_left_out, c_straddle, c_pinch, c_lift, hold),
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""
