@@ -10,7 +10,8 @@ A: press the object and slide it until it overhangs the usable edge; grasp the o
    the side (fingers above and below it); lift.
 B: two arms touch opposite sides, squeeze, lift together.
 C: two open grippers, leaning outward, press the sheet and slide towards each other to raise a
-   fold; both let go (the left one backs away), the right one straddles the fold, pinches it and lifts.
+   fold; both let go (the left one steps off the fold, rises, then moves away), the right one straddles
+   the fold at the sheet's current centre, pinches it and lifts.
 """
 
 from __future__ import annotations
