@@ -167,6 +167,37 @@ def test_edge_profiles_keep_a_box_on_the_top():
         assert max(hi[2] for _, hi in boxes) == pytest.approx(base.table_height, abs=1e-6), edge
 
 
+@pytest.mark.parametrize("oid", ["disk_compact_disc", "towel_hand_white"])
+def test_object_pushed_off_the_table_lands_on_the_floor(oid):
+    """An object that leaves the table lies on the floor (it fell through a visual-only floor to
+    z = -2 km before, which also put -2 km into recorded environment states), and the failure
+    reason says it fell.  The floor is invisible to the cameras and untouchable by the arms."""
+    sim = FlatLabSim(get_object(oid))
+    sim.reset(0.0, 0.0, 0.3)
+    m, d = sim.model, sim.data
+    assert not sim.grasp_status().fallen
+    shift = sim.cell.edge_x + 0.35
+    so = sim.objects[0]
+    if so.free_qadr is not None:
+        d.qpos[so.free_qadr] += shift
+    else:  # cloth: every vertex body's x slide joint
+        f = so.flex_id
+        bodies = set(m.flex_vertbodyid[m.flex_vertadr[f] : m.flex_vertadr[f] + m.flex_vertnum[f]])
+        for j in range(m.njnt):
+            if m.jnt_bodyid[j] in bodies and m.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE and abs(m.jnt_axis[j][0]) > 0.9:
+                d.qpos[m.jnt_qposadr[j]] += shift
+    mujoco.mj_forward(m, d)
+    t0 = d.time
+    while d.time - t0 < 2.0:
+        mujoco.mj_step(m, d)
+    lowest = sim.object_points(0)[:, 2].min()
+    assert -0.001 < lowest < 0.005, lowest
+    st = sim.grasp_status()
+    assert st.fallen and st.shortfall == "object fell off the table"
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor_collision")
+    assert m.geom_group[g] >= 3 and m.geom_contype[g] == 0  # hidden from renders, arms never touch it
+
+
 def test_bad_scene_inputs_name_file_and_field(tiny_scene_catalog):
     scenes, mats, good = tiny_scene_catalog("edge: rounded, material: oak, props: [bookshelf, chair]")
     cell = CellConfig(**cell_config_for_scene("s1", scenes, mats))

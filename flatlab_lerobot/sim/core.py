@@ -28,6 +28,7 @@ ACTION_DIM = 16  # per arm: 7 joint targets (rad) + gripper width (m)
 LIFT_HEIGHT = 0.05  # success: lowest object point at least this far above the table (m)
 HOLD_TIME = 2.0  # success: ... for this long (s)
 MAX_SLIP = 0.01  # success: ... moving less than this relative to the holding gripper(s) (m)
+FELL_DROP = 0.10  # failure reason "fell off the table": the object's mean point is this far below the top (m)
 
 
 class SimulationDiverged(RuntimeError):
@@ -44,10 +45,13 @@ class GraspStatus:
     slip: float  # object motion relative to the holding hands since the hold began (m)
     held_for: float  # seconds the hold has satisfied every condition
     success: bool
+    fallen: bool = False  # the object's mean point is FELL_DROP or more below the table top
 
     @property
     def shortfall(self) -> str:
         """Which part of the success rule an unsuccessful episode missed, for failure reasons."""
+        if self.fallen:
+            return "object fell off the table"
         return "object not aloft" if self.clearance < LIFT_HEIGHT else "held < 2 s or slipped"
 
 
@@ -359,7 +363,8 @@ class FlatLabSim:
 
     def grasp_status(self, index: int | None = None) -> GraspStatus:
         i = self.target_index if index is None else index
-        clearance = float(self.object_points(i)[:, 2].min() - self.cell.table_height)
+        z = self.object_points(i)[:, 2]
+        clearance = float(z.min() - self.cell.table_height)
         held = float(self._time_held[i])
         return GraspStatus(
             clearance=clearance,
@@ -368,6 +373,7 @@ class FlatLabSim:
             slip=self._slip(i),
             held_for=held,
             success=held >= HOLD_TIME - 1e-9,
+            fallen=bool(z.mean() < self.cell.table_height - FELL_DROP),
         )
 
     def is_success(self, index: int | None = None) -> bool:
