@@ -19,7 +19,7 @@ This is the ``clear_desk`` scenario of :mod:`flatlab_lerobot.tasks`:
 
 Success predicate (:func:`desk_cleared`): every object was lifted by the robot (the hold rule
 was met for it) and none remains on the table: each object's centre lies at least
-``CLEARED_DROP`` below the table top.
+``OFF_TABLE_DROP`` below the table top (:meth:`FlatLabSim.off_table`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, HOME_Q
 from flatlab_lerobot.sim.scene import CellConfig
 
-CLEARED_DROP = 0.10  # m: an object is off the table once its centre is this far below the table top
 CARRY_MARGIN = 0.04  # m: how far past the usable edge the held object is carried (see carry_candidates)
 CARRY_SPEED = 0.10  # m/s, mean
 HOME_STEPS = 20  # control steps of the joint-space move home after each object
@@ -261,14 +260,9 @@ def make_desk_sim(layout: DeskLayout, cell: CellConfig | None = None, control_dt
 
 
 # ----------------------------------------------------------------------------- predicate
-def off_table(sim: FlatLabSim, index: int) -> bool:
-    """``objects[index]`` no longer lies on (or above) the table: its centre is CLEARED_DROP below the top."""
-    return bool(sim.object_pose(index)[0][2] < sim.cell.table_height - CLEARED_DROP)
-
-
 def cleared(sim: FlatLabSim) -> np.ndarray:
     """Per object: lifted by the robot (the hold rule was met for it) and off the table now."""
-    return np.array([bool(sim.lifted[i]) and off_table(sim, i) for i in range(len(sim.objects))])
+    return np.array([bool(sim.lifted[i]) and sim.off_table(i) for i in range(len(sim.objects))])
 
 
 def desk_cleared(sim: FlatLabSim) -> bool:
@@ -280,9 +274,9 @@ def advance_target(sim: FlatLabSim) -> int:
     """Once the target is off the table, make the first object (in clearing order) still on it
     the target, so the privileged state and the object cloud follow the next object (for
     policies run in the env).  Returns the target index."""
-    if off_table(sim, sim.target_index):
+    if sim.off_table(sim.target_index):
         for i in range(len(sim.objects)):
-            if not off_table(sim, i):
+            if not sim.off_table(i):
                 sim.set_target(i)
                 break
     return sim.target_index

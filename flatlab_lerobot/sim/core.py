@@ -28,7 +28,7 @@ ACTION_DIM = 16  # per arm: 7 joint targets (rad) + gripper width (m)
 LIFT_HEIGHT = 0.05  # success: lowest object point at least this far above the table (m)
 HOLD_TIME = 2.0  # success: ... for this long (s)
 MAX_SLIP = 0.01  # success: ... moving less than this relative to the holding gripper(s) (m)
-FELL_DROP = 0.10  # failure reason "fell off the table": the object's mean point is this far below the top (m)
+OFF_TABLE_DROP = 0.10  # an object is off the table once its centre is this far below the table top (m)
 
 
 class SimulationDiverged(RuntimeError):
@@ -45,7 +45,7 @@ class GraspStatus:
     slip: float  # object motion relative to the holding hands since the hold began (m)
     held_for: float  # seconds the hold has satisfied every condition
     success: bool
-    fallen: bool = False  # the object's mean point is FELL_DROP or more below the table top
+    fallen: bool = False  # the object is off the table (FlatLabSim.off_table)
 
     @property
     def shortfall(self) -> str:
@@ -363,8 +363,7 @@ class FlatLabSim:
 
     def grasp_status(self, index: int | None = None) -> GraspStatus:
         i = self.target_index if index is None else index
-        z = self.object_points(i)[:, 2]
-        clearance = float(z.min() - self.cell.table_height)
+        clearance = float(self.object_points(i)[:, 2].min() - self.cell.table_height)
         held = float(self._time_held[i])
         return GraspStatus(
             clearance=clearance,
@@ -373,8 +372,13 @@ class FlatLabSim:
             slip=self._slip(i),
             held_for=held,
             success=held >= HOLD_TIME - 1e-9,
-            fallen=bool(z.mean() < self.cell.table_height - FELL_DROP),
+            fallen=self.off_table(i),
         )
+
+    def off_table(self, index: int | None = None) -> bool:
+        """The object (or ``objects[index]``) no longer lies on or above the table: its centre is
+        OFF_TABLE_DROP below the top (on the floor, in the drop bin, or falling)."""
+        return bool(self.object_pose(index)[0][2] < self.cell.table_height - OFF_TABLE_DROP)
 
     def is_success(self, index: int | None = None) -> bool:
         """The success rule holds now for the target (or ``objects[index]``)."""
