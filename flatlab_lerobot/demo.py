@@ -87,7 +87,7 @@ def run_demo(out_dir: Path, strategies=("A", "B", "C"), seed: int = 0, size=(360
     records = []
     for strategy in strategies:
         object_id = REFERENCE_OBJECTS[strategy]
-        keyframes, video, state = [], [], {"renderer": None, "last": None}
+        keyframes, video, state = [], [], {"renderer": None, "last": None, "last_stage": ""}
 
         def on_step(sim, stage, prim_index, keyframes=keyframes, video=video, state=state):
             if state["renderer"] is None:
@@ -97,9 +97,11 @@ def run_demo(out_dir: Path, strategies=("A", "B", "C"), seed: int = 0, size=(360
             frame = r.render()
             video.append(frame)
             key = (prim_index, stage != "move")
-            if key != state["last"]:
+            # A's push passes that are not needed run as short holds: one "hold" frame stands for the run
+            repeat_hold = stage == "hold" and state["last_stage"] == "hold"
+            if key != state["last"] and not repeat_hold:
                 keyframes.append(_label(frame, f"{prim_index}: {stage}"))
-                state["last"] = key
+            state["last"], state["last_stage"] = key, stage
 
         rec = run_expert_episode(object_id, strategy, seed, on_step=on_step)
         sim = rec.pop("_sim")
