@@ -8,6 +8,11 @@ Observation (a ``Dict``):
   ``pointcloud_cameras``, cropped to the workspace box above the table, sampled to a fixed size.
 * ``object_pointcloud`` (n_object_points, 3) float32: the pixels the segmentation assigns to the
   object (rigid geoms / the cloth flex), sampled to a fixed size (zeros when the object is not seen).
+* ``ee_pose`` (14,) float32: per arm the TCP position + quaternion wxyz, world frame (what the
+  robot's forward kinematics reports; names ``sim.core.EE_POSE_NAMES``, as the datasets record it).
+* ``cell`` (7,) float32: the cell's calibration, constant per scene: table top height, depth, width,
+  thickness and the arm bases (``sim.scene.CALIBRATION_NAMES``).  Policies that plan with a
+  kinematic model build it from this (``CellConfig.from_calibration``).
 * ``environment_state`` (14,) float32: privileged state, names in ``strategies.ENV_STATE_NAMES``.
 
 Action: ``action_mode="joint"`` (default): (16,) joint targets + gripper width per arm.
@@ -44,7 +49,7 @@ from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
 from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.domain import Domain, apply_domain
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
-from flatlab_lerobot.sim.scene import CellConfig
+from flatlab_lerobot.sim.scene import CALIBRATION_NAMES, CellConfig
 from flatlab_lerobot.tasks import SCENARIOS, TASKS, task_context
 
 GYM_ID = "lerobot_env_flatlab/FlatLab-v0"
@@ -158,6 +163,8 @@ class FlatLabEnv(gym.Env):
         s = self.image_size
         obs = {
             "agent_pos": spaces.Box(-np.inf, np.inf, (16,), np.float32),
+            "ee_pose": spaces.Box(-np.inf, np.inf, (14,), np.float32),
+            "cell": spaces.Box(-np.inf, np.inf, (len(CALIBRATION_NAMES),), np.float32),
             "environment_state": spaces.Box(-np.inf, np.inf, (14,), np.float32),
         }
         if self.obs_pixels:
@@ -181,6 +188,8 @@ class FlatLabEnv(gym.Env):
         rig.invalidate()
         obs = {
             "agent_pos": sim.joint_positions().astype(np.float32),
+            "ee_pose": sim.ee_pose().astype(np.float32),
+            "cell": self.cell.calibration().astype(np.float32),
             "environment_state": sim.environment_state().astype(np.float32),
         }
         if self.obs_pixels:
@@ -285,6 +294,13 @@ class FlatLabEnv(gym.Env):
 def register_gym() -> None:
     if GYM_ID not in gym.registry:
         gym.register(id=GYM_ID, entry_point="flatlab_lerobot.env:FlatLabEnv")
+
+
+def make_flatlab_env(**kwargs) -> gym.Env:
+    """``gym.make(GYM_ID, **kwargs)``, importable by name: a vector env's worker process that
+    unpickles it imports this module, which registers the gym id."""
+    register_gym()
+    return gym.make(GYM_ID, **kwargs)
 
 
 register_gym()

@@ -36,4 +36,17 @@ pipi() {
 }
 pipi --upgrade pip
 pipi -e ".[test]"
-echo "setup: ready ($(.venv/bin/python --version), $(.venv/bin/python -c 'import mujoco, lerobot; print("mujoco", mujoco.__version__, "lerobot", lerobot.__version__)'))"
+# torchcodec, lerobot's default video decoder, loads FFmpeg's shared libraries (libavcodec, ...) from the
+# system; without them every lerobot-train / lerobot-dataset-viz run prints ~10 OSError tracebacks and
+# falls back to pyav.  Debian/Ubuntu as root: install them (the `ffmpeg` package pulls the distro's
+# libav* of whatever version); otherwise say how.  Not fatal: pyav still decodes everything.
+if ! .venv/bin/python -c 'import torchcodec' >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends ffmpeg; } >/dev/null 2>&1 \
+      || echo "setup: warning: apt-get install ffmpeg failed; videos decode with pyav (lerobot prints torchcodec tracebacks)" >&2
+  else
+    echo "setup: note: torchcodec finds no FFmpeg libraries; install them (Debian/Ubuntu: sudo apt-get install ffmpeg)," \
+      "or lerobot decodes videos with pyav after printing torchcodec tracebacks" >&2
+  fi
+fi
+echo "setup: ready ($(.venv/bin/python --version), $(.venv/bin/python -c 'import mujoco, lerobot; print("mujoco", mujoco.__version__, "lerobot", lerobot.__version__)'), video decoder: $(.venv/bin/python -c 'import torchcodec; print("torchcodec")' 2>/dev/null || echo pyav))"

@@ -109,7 +109,7 @@ def make_env_config(env_args: list[str], builtin: bool):
     lerobot-eval parses them (the built-ins default to no pixels / no clouds)."""
     import draccus
 
-    from flatlab_lerobot.lerobot_env import FlatLabEnvConfig
+    from flatlab_lerobot.lerobot_env import EnvConfigError, FlatLabEnvConfig
 
     fields = {f.name for f in dataclasses.fields(FlatLabEnvConfig)}
     for a in env_args:
@@ -123,6 +123,8 @@ def make_env_config(env_args: list[str], builtin: bool):
     args = (BUILTIN_ENV_ARGS if builtin else []) + env_args
     try:
         return draccus.parse(config_class=FlatLabEnvConfig, args=args)
+    except EnvConfigError as e:
+        raise EvalError(str(e)) from None
     except SystemExit as e:
         raise EvalError(f"bad --env.* value in {env_args}") from e
 
@@ -153,19 +155,6 @@ def load_policy_config(name: str, builtin: bool, overrides: list[str]):
         raise EvalError(f"{where}: cannot load the policy config: {type(e).__name__}: {e}") from e
     cfg.pretrained_path = Path(name)
     return cfg
-
-
-def check_features(policy_cfg, env_cfg) -> None:
-    """The inputs the checkpoint was trained on must be among the env's observations."""
-    from lerobot.envs.utils import env_to_policy_features
-
-    have = env_to_policy_features(env_cfg)
-    missing = [k for k in (policy_cfg.input_features or {}) if k not in have]
-    if missing:
-        raise EvalError(
-            f"the policy needs inputs {missing} that the env does not give (env gives {sorted(have)}): "
-            "set --env.cameras / --env.obs_pixels / --env.obs_pointcloud to match its training data"
-        )
 
 
 class Evaluator:
@@ -556,7 +545,12 @@ def main(argv=None) -> int:
     env_cfg = make_env_config(env_args, builtin)
     policy_cfg = load_policy_config(policy, builtin, policy_args)
     if not builtin:
-        check_features(policy_cfg, env_cfg)
+        from flatlab_lerobot.lerobot_env import PolicyEnvMismatch, check_policy_features
+
+        try:
+            check_policy_features(policy_cfg, env_cfg, where=f"--policy {policy}", rename_map=rename_map)
+        except PolicyEnvMismatch as e:
+            raise EvalError(str(e)) from None
     out = args.out or OUTPUTS_DIR / "eval" / _slug(args.policy)
     out.mkdir(parents=True, exist_ok=True)
     splits = [s.strip() for s in args.splits.split(",") if s.strip()]

@@ -17,13 +17,11 @@ import functools
 import time
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 
 from flatlab_lerobot.catalog import get_object
 from flatlab_lerobot.collect.recipe import Recipe
 from flatlab_lerobot.sim.core import SimulationDiverged
-from flatlab_lerobot.sim.robot import ARMS
 
 STAGE_HOLD = "hold"
 
@@ -111,19 +109,6 @@ def make_env(recipe: Recipe, object_id: str):
     )
 
 
-def ee_pose(sim) -> np.ndarray:
-    """(14,) per arm (left, right): TCP position (3) + quaternion wxyz (4), world frame."""
-    out = []
-    for arm in ARMS:
-        pos, R = sim.tcp_pose(arm)
-        q = np.zeros(4)
-        mujoco.mju_mat2Quat(q, R.reshape(-1))
-        if q[0] < 0:  # canonical hemisphere, so the stream has no sign flips
-            q = -q
-        out.append(np.r_[pos, q])
-    return np.concatenate(out).astype(np.float32)
-
-
 def _frame(recipe: Recipe, env, obs: dict, action: np.ndarray, stage: str, stage_index: int) -> dict:
     f: dict = {
         "observation.state": np.asarray(obs["agent_pos"], np.float32),
@@ -142,7 +127,7 @@ def _frame(recipe: Recipe, env, obs: dict, action: np.ndarray, stage: str, stage
     if recipe.has("object_pointcloud"):
         f["observation.object_pointcloud"] = np.asarray(obs["object_pointcloud"], np.float32)
     if recipe.has("ee_pose"):
-        f["observation.ee_pose"] = ee_pose(env.sim)
+        f["observation.ee_pose"] = env.sim.ee_pose().astype(np.float32)
     if recipe.has("environment_state"):
         f["observation.environment_state"] = np.asarray(obs["environment_state"], np.float32)
     return f

@@ -63,6 +63,7 @@ def joint_names() -> list[str]:
 
 
 def build_features(recipe: Recipe) -> dict:
+    from flatlab_lerobot.sim.core import EE_POSE_NAMES
     from flatlab_lerobot.strategies import ENV_STATE_NAMES
 
     s = recipe.image_size
@@ -91,7 +92,7 @@ def build_features(recipe: Recipe) -> dict:
     if recipe.has("ee_pose"):
         feats["observation.ee_pose"] = {
             "dtype": "float32", "shape": (14,),
-            "names": [f"{arm}_{k}" for arm in ARMS for k in ("x", "y", "z", "qw", "qx", "qy", "qz")],
+            "names": list(EE_POSE_NAMES),
         }  # fmt: skip
     if recipe.has("environment_state"):
         feats["observation.environment_state"] = {"dtype": "float32", "shape": (14,), "names": list(ENV_STATE_NAMES)}

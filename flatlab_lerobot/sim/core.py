@@ -28,6 +28,7 @@ ACTION_DIM = 16  # per arm: 7 joint targets (rad) + gripper width (m)
 LIFT_HEIGHT = 0.05  # success: lowest object point at least this far above the table (m)
 HOLD_TIME = 2.0  # success: ... for this long (s)
 MAX_SLIP = 0.01  # success: ... moving less than this relative to the holding gripper(s) (m)
+EE_POSE_NAMES = tuple(f"{arm}_{k}" for arm in ARMS for k in ("x", "y", "z", "qw", "qx", "qy", "qz"))
 OFF_TABLE_DROP = 0.10  # an object is off the table once its centre is this far below the table top (m)
 
 
@@ -248,6 +249,17 @@ class FlatLabSim:
     def tcp_pose(self, arm: str) -> tuple[np.ndarray, np.ndarray]:
         s = self.arms[arm].tcp_site
         return self.data.site_xpos[s].copy(), self.data.site_xmat[s].reshape(3, 3).copy()
+
+    def ee_pose(self) -> np.ndarray:
+        """(14,) per arm (left, right): TCP position (3) + unit quaternion wxyz (4), world frame,
+        w >= 0 (one hemisphere, so a stream of poses has no sign flips).  Names: ``EE_POSE_NAMES``."""
+        out = []
+        for arm in ARMS:
+            pos, R = self.tcp_pose(arm)
+            q = np.zeros(4)
+            mujoco.mju_mat2Quat(q, R.reshape(-1))
+            out.append(np.r_[pos, -q if q[0] < 0 else q])
+        return np.concatenate(out)
 
     def object_points(self, index: int | None = None) -> np.ndarray:
         """World positions of the object's corners (rigid) or vertices (cloth), (K, 3).

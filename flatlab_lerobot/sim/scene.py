@@ -56,6 +56,11 @@ def default_cameras(table_height: float) -> tuple[CameraSpec, ...]:
     )
 
 
+CALIBRATION_NAMES = (
+    "table_height", "table_depth", "table_width", "table_thickness", "arm_base_x", "arm_base_y", "arm_base_drop",
+)  # fmt: skip  (CellConfig.calibration: what the env observes as ``cell``)
+
+
 @dataclass
 class CellConfig:
     """Geometry and physics of the cell.
@@ -110,6 +115,27 @@ class CellConfig:
     @property
     def edge_x(self) -> float:
         return self.table_size[0] / 2
+
+    def calibration(self) -> np.ndarray:
+        """The cell as a robot's calibration knows it (``CALIBRATION_NAMES``): table top height,
+        depth, width and thickness, and where the arm bases stand.  The env observes it as ``cell``,
+        so a policy that plans with a kinematic model (the scripted expert, the learned executor)
+        builds the cell it is evaluated in: :meth:`from_calibration`."""
+        depth, width = self.table_size
+        return np.array(
+            [self.table_height, depth, width, self.table_thickness, self.arm_base_x, self.arm_base_y, self.arm_base_drop]
+        )
+
+    @classmethod
+    def from_calibration(cls, v) -> CellConfig:
+        """The kinematic cell of :meth:`calibration`'s vector (no scene dressing: the arms, the
+        table top and its edge are what a planner needs)."""
+        v = np.asarray(v, np.float64).reshape(-1)
+        if v.shape != (len(CALIBRATION_NAMES),):
+            raise ValueError(f"a cell calibration has {len(CALIBRATION_NAMES)} values {CALIBRATION_NAMES}, got {v.shape}")
+        h, depth, width, thick, bx, by, drop = (float(x) for x in v)
+        return cls(table_height=h, table_size=(depth, width), table_thickness=thick, arm_base_x=bx, arm_base_y=by,
+                   arm_base_drop=drop)  # fmt: skip
 
     def camera_specs(self) -> tuple[CameraSpec, ...]:
         return self.cameras if self.cameras is not None else default_cameras(self.table_height)

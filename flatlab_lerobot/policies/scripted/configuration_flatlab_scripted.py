@@ -7,7 +7,8 @@ The policy needs no training and no checkpoint.  ``strategy``:
   **C** if the deformable flag (index 10) is set, else **B** if the object's thickness (size z,
   index 9) is >= ``thick_threshold`` (0.04 m), else **A**.
 
-It reads ``observation.state`` (16,) and ``observation.environment_state`` (14,) *un-normalized*:
+It reads ``observation.state`` (16,), ``observation.environment_state`` (14,) and ``observation.cell``
+(7,: the cell's table and arm-base calibration, from which it builds its kinematic model) *un-normalized*:
 its processors have no normalizer step, and ``normalization_mapping`` is IDENTITY everywhere.
 """
 
@@ -60,7 +61,7 @@ class FlatLabScriptedConfig(PreTrainedConfig):
 
     def validate_features(self) -> None:
         feats = self.input_features or {}
-        for key in (OBS_STATE, OBS_ENV_STATE):
+        for key in (OBS_STATE, OBS_ENV_STATE, "observation.cell"):
             if feats and key not in feats:
                 raise ValueError(f"flatlab_scripted needs input feature {key!r} (got {sorted(feats)})")
         act = (self.output_features or {}).get(ACTION)

@@ -1,5 +1,7 @@
 """``FlatLabScriptedPolicy``: one :class:`~flatlab_lerobot.strategies.Expert` episode generator per
-batch element, fed from ``observation.state`` and ``observation.environment_state``."""
+batch element, fed from ``observation.state`` and ``observation.environment_state``.  The expert's
+kinematic model is the cell the env observes (``observation.cell``: table height and size, arm
+bases), so it plans in the scene it is evaluated in."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
+from flatlab_lerobot.lerobot_env import OBS_CELL
 from flatlab_lerobot.policies.scripted.configuration_flatlab_scripted import FlatLabScriptedConfig
 
 
@@ -43,15 +46,21 @@ class FlatLabScriptedPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self._experts: list = []
+        self._experts: dict = {}
         self._episodes: list[_Episode] | None = None
 
-    def _expert(self, i: int):
+    def _expert(self, i: int, cell: np.ndarray | None):
+        """Batch element ``i``'s expert for the cell with calibration ``cell`` (None: the default cell).
+        An expert holds IK state, so batch elements never share one; each is built once (building
+        compiles a MuJoCo model) and reused by later episodes of element ``i`` in the same cell."""
+        from flatlab_lerobot.sim.scene import CellConfig
         from flatlab_lerobot.strategies import Expert
 
-        while len(self._experts) <= i:
-            self._experts.append(Expert(None, self.config.control_dt))
-        return self._experts[i]
+        key = (i, None if cell is None else tuple(np.round(np.asarray(cell, np.float64), 6)))
+        if key not in self._experts:
+            cfg = None if key[1] is None else CellConfig.from_calibration(key[1])
+            self._experts[key] = Expert(cfg, self.config.control_dt)
+        return self._experts[key]
 
     def get_optim_params(self) -> dict:
         return self.parameters()
@@ -75,13 +84,16 @@ class FlatLabScriptedPolicy(PreTrainedPolicy):
             state, env_state = state.unsqueeze(0), env_state.unsqueeze(0)
         s = state.detach().cpu().numpy().astype(np.float64)
         e = env_state.detach().cpu().numpy().astype(np.float64)
+        cells = batch.get(OBS_CELL)
+        if cells is not None:
+            cells = cells.reshape(len(s), -1).detach().cpu().numpy()
         if self._episodes is None or len(self._episodes) != len(s):
             self._episodes = []
             for i in range(len(s)):
                 strat = self.config.strategy
                 if strat == "auto":
                     strat = pick_strategy(e[i], self.config.thick_threshold)
-                self._episodes.append(_Episode(self._expert(i), strat))
+                self._episodes.append(_Episode(self._expert(i, None if cells is None else cells[i]), strat))
         actions = np.stack([ep.act(s[i], e[i]) for i, ep in enumerate(self._episodes)])
         return torch.as_tensor(actions, dtype=torch.float32, device=state.device)
 
