@@ -39,7 +39,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, load_objects
+from flatlab_lerobot.catalog import REFERENCE_OBJECTS, load_objects
 from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
 from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.domain import Domain, apply_domain
@@ -107,7 +107,7 @@ class FlatLabEnv(gym.Env):
         if scene and cell is not None:
             raise ValueError("give either scene (an envs/scenes id) or cell (a CellConfig), not both")
         self.scene = scene or None  # None: the default cell
-        self._cell = CellConfig(**cell_config_for_scene(scene)) if scene else cell
+        self._cell = CellConfig.from_scene(scene) if scene else cell
         self._objects = load_objects()
         self.sim: FlatLabSim | None = None
         self.rig: CameraRig | None = None

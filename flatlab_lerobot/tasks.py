@@ -345,10 +345,9 @@ def start_episode(task: TaskSpec, object_id: str, seed: int, scene: str | None =
     scene = scene or task.reset.scene(seed)
     cell = None
     if scene:
-        from flatlab_lerobot.catalog import cell_config_for_scene
         from flatlab_lerobot.sim.scene import CellConfig
 
-        cell = CellConfig(**cell_config_for_scene(scene))
+        cell = CellConfig.from_scene(scene)
     sim = FlatLabSim(get_object(object_id), cell)
     sim.reset(*task.reset.sample(seed))
     return sim, task_context(task, sim)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.assets import OBJECT_BODY
 from flatlab_lerobot.catalog import ObjectSpec
+from flatlab_lerobot.constants import OBJECT_BODY
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, HOME_Q, ArmIndex, DualArmIK
 from flatlab_lerobot.sim.scene import CellConfig, build_model, clutter_name
 
