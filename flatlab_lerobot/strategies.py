@@ -21,15 +21,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.primitives import ArmMotion, Primitive, PrimitiveRunner
+from flatlab_lerobot.primitives import ArmMotion, Primitive, PrimitiveRunner, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, ArmIndex, DualArmIK, tcp_rotation
+from flatlab_lerobot.sim.core import ENV_STATE_INDEX
 from flatlab_lerobot.sim.scene import CellConfig, build_model
 
-ENV_STATE_DIM = 14
-ENV_STATE_NAMES = (
-    "obj_x", "obj_y", "obj_z", "obj_qw", "obj_qx", "obj_qy", "obj_qz",
-    "obj_size_x", "obj_size_y", "obj_size_z", "deformable", "table_height", "table_edge_x", "obj_mass",
-)  # fmt: skip
 DOWN = np.array([0.0, 0.0, -1.0])
 FINGER_TIP_BELOW_TCP = 0.007  # finger tips sit this far beyond the TCP along the approach (m)
 FINGER_HALF_WIDTH = 0.01  # half thickness of a finger along the hand x axis (m)
@@ -48,9 +44,14 @@ class World:
 
     @classmethod
     def from_vector(cls, v) -> "World":
+        """From the privileged state (:data:`~flatlab_lerobot.sim.core.ENV_STATE_NAMES`)."""
         v = np.asarray(v, dtype=float)
-        qw, qz = v[3], v[6]
-        return cls(v[0:3], float(2 * np.arctan2(qz, qw)), v[7:10], bool(v[10] > 0.5), float(v[11]), float(v[12]))
+        i = ENV_STATE_INDEX
+        return cls(
+            v[[i["obj_x"], i["obj_y"], i["obj_z"]]], float(2 * np.arctan2(v[i["obj_qz"]], v[i["obj_qw"]])),
+            v[[i["obj_size_x"], i["obj_size_y"], i["obj_size_z"]]], bool(v[i["deformable"]] > 0.5),
+            float(v[i["table_height"]]), float(v[i["table_edge_x"]]),
+        )  # fmt: skip
 
     def axes(self) -> tuple[np.ndarray, np.ndarray]:
         c, s = np.cos(self.yaw), np.sin(self.yaw)
@@ -223,7 +224,7 @@ class Expert:
         agent_pos, _ = observe()
         q = np.r_[agent_pos[0:7], agent_pos[8:15]]
         grip = {"left": float(agent_pos[7]), "right": float(agent_pos[15])}
-        action = PrimitiveRunner._action(q, grip)
+        action = joint_action(q, grip)
         ctx: dict = {}  # choices that hold for the whole episode (e.g. which arm pushes in A)
         for i, stage in enumerate(STRATEGIES[strategy]):
             _, env_state = observe()

@@ -277,7 +277,7 @@ def test_domain_randomization_is_recorded_applied_and_rebuilds_clouds(tmp_path):
     try:
         env.reset(seed=rec["seed"], options={"placement": sample_placement(recipe, rec["seed"]), "domain": dom})
         m, o = env.sim.model, env.sim.objects[0]
-        nominal = env.sim._domain_nominal
+        nominal = env.sim.domain_nominal
         assert m.body_mass[o.body] == pytest.approx(nominal.body_mass[o.body] * dom.mass_scale)
         assert m.geom_friction[o.geoms[0], 0] == pytest.approx(nominal.geom_friction[o.geoms[0], 0] * dom.friction_scale)
         for c in ("front", "top"):

@@ -135,3 +135,26 @@ def test_catalog_imports_nothing_from_sim():
 @pytest.mark.parametrize("mod", sorted(m for m in MODULES if not m.endswith(".__main__")))
 def test_every_module_imports(mod):
     importlib.import_module(mod)
+
+
+# Private attributes of a third-party class the package has to reach (no public API for them).
+THIRD_PARTY_PRIVATE = {
+    "_rect", "_mjr_context", "_gl_context",  # mujoco.Renderer: custom render passes (segmentation + depth)
+    "_exit",  # os._exit: the documented way to leave a forked/spawned worker at once
+    "_streaming_encoder",  # lerobot's dataset writer: whether it encodes video while recording
+}
+
+
+@pytest.mark.parametrize("mod", sorted(MODULES))
+def test_no_access_to_another_objects_private_attributes(mod):
+    """``x._name`` only on ``self`` / ``cls`` (tests may peek; the package may not)."""
+    bad = []
+    for node in ast.walk(ast.parse(MODULES[mod].read_text())):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            owner = node.value
+            if isinstance(owner, ast.Name) and owner.id in ("self", "cls"):
+                continue
+            if node.attr in THIRD_PARTY_PRIVATE:
+                continue
+            bad.append(f"line {node.lineno}: {ast.unparse(node)}")
+    assert not bad, f"{mod} reads private attributes of other objects: {bad}"

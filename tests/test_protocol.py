@@ -139,10 +139,10 @@ def test_same_episodes_and_numbers_as_lerobot_eval(tmp_path):
     summary = json.loads((out / "results.json").read_text())
     assert 100 * summary["overall"]["G"] == pytest.approx(info["overall"]["pc_success"])
     # the placement is the benchmark's reset distribution for that seed (planar ±5 cm, yaw ±30°)
-    from flatlab_lerobot.demo import sample_placement
+    from flatlab_lerobot.tasks import ResetDistribution
 
     for r in recs:
-        x, y, yaw = sample_placement(r["seed"])
+        x, y, yaw = ResetDistribution().sample(r["seed"])
         p = r["placement"]
         np.testing.assert_allclose([p["x"], p["y"], p["yaw_deg"]], [x, y, np.degrees(yaw)], atol=1e-9)
 

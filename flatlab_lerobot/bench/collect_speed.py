@@ -194,7 +194,7 @@ def profile_episode(recipe, episode_index: int = 0) -> dict:
         store.recover()
         store.begin()  # the first open imports lerobot/torch, once per run: not timed
         store.abort()
-        store._camera_meta = camera_meta(recipe)  # computed once per run, too
+        store.camera_meta = camera_meta(recipe)  # computed once per run, too
         run_episode(recipe, episode_index)  # warm imports and caches
         for label, mod, attr in PROFILE_PIECES:
             owner = importlib.import_module(mod)

@@ -32,6 +32,7 @@ from typing import Any
 import yaml
 
 from flatlab_lerobot.sim.domain import Domain, sample_domain
+from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
 MODALITIES = ("rgb", "depth", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
 DEFAULT_MODALITIES = ("rgb", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
@@ -47,8 +48,8 @@ class RecipeError(ValueError):
 
 @dataclass(frozen=True)
 class Randomization:
-    xy_range: float = 0.05  # object planar offset, uniform in ±xy_range (m)
-    yaw_range_deg: float = 30.0  # object yaw, uniform in ±yaw_range_deg
+    xy_range: float = DEFAULT_PLANAR  # object planar offset, uniform in ±xy_range (m)
+    yaw_range_deg: float = DEFAULT_YAW_DEG  # object yaw, uniform in ±yaw_range_deg
     # The episode's domain (flatlab_lerobot.sim.domain; recorded per episode in meta/flatlab_episodes.jsonl):
     joint_noise: float = 0.0  # robot start posture: every arm joint uniform in ±joint_noise rad off home
     camera_pos_jitter: float = 0.0  # every camera moved uniform in ±this per world axis (m) ...
@@ -287,8 +288,8 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
     rand_keys = {f.name for f in dataclasses.fields(Randomization)}
     r = v.mapping("randomization", raw.get("randomization"), rand_keys)
     kw["randomization"] = Randomization(
-        xy_range=v.number("randomization.xy_range", r.get("xy_range", 0.05), 0.0, 0.3),
-        yaw_range_deg=v.number("randomization.yaw_range_deg", r.get("yaw_range_deg", 30.0), 0.0, 180.0),
+        xy_range=v.number("randomization.xy_range", r.get("xy_range", DEFAULT_PLANAR), 0.0, 0.3),
+        yaw_range_deg=v.number("randomization.yaw_range_deg", r.get("yaw_range_deg", DEFAULT_YAW_DEG), 0.0, 180.0),
         joint_noise=v.number("randomization.joint_noise", r.get("joint_noise", 0.0), 0.0, 0.5),
         camera_pos_jitter=v.number("randomization.camera_pos_jitter", r.get("camera_pos_jitter", 0.0), 0.0, 0.1),
         camera_rot_jitter_deg=v.number(

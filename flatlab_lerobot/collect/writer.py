@@ -43,6 +43,7 @@ import numpy as np
 
 from flatlab_lerobot.collect.recipe import Recipe, RecipeError
 from flatlab_lerobot.collect.runner import EpisodeResult
+from flatlab_lerobot.sim.core import ENV_STATE_DIM, ENV_STATE_NAMES, STATE_NAMES
 from flatlab_lerobot.sim.robot import ARMS
 
 READY = ".flatlab_ready"
@@ -59,12 +60,10 @@ class DatasetMismatch(RuntimeError):
 
 # ---------------------------------------------------------------------------------- features
 def joint_names() -> list[str]:
-    return [f"{arm}_{j}" for arm in ARMS for j in [*(f"joint{i}" for i in range(1, 8)), "gripper_width"]]
+    return list(STATE_NAMES)
 
 
 def build_features(recipe: Recipe) -> dict:
-    from flatlab_lerobot.strategies import ENV_STATE_NAMES
-
     s = recipe.image_size
     vis = "video" if recipe.video.use_videos else "image"
     feats: dict = {
@@ -94,7 +93,7 @@ def build_features(recipe: Recipe) -> dict:
             "names": [f"{arm}_{k}" for arm in ARMS for k in ("x", "y", "z", "qw", "qx", "qy", "qz")],
         }  # fmt: skip
     if recipe.has("environment_state"):
-        feats["observation.environment_state"] = {"dtype": "float32", "shape": (14,), "names": list(ENV_STATE_NAMES)}
+        feats["observation.environment_state"] = {"dtype": "float32", "shape": (ENV_STATE_DIM,), "names": list(ENV_STATE_NAMES)}
     feats.update(
         {
             "stage_index": {"dtype": "int64", "shape": (1,), "names": None},
@@ -131,7 +130,7 @@ def camera_meta(recipe: Recipe) -> dict:
                 "fx": fx, "fy": fy, "cx": cx, "cy": cy,
                 "K": [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]],
                 "cam_to_world": T.tolist(),
-                "znear": float(env.rig._znear), "zfar": float(env.rig._zfar),
+                "znear": float(env.rig.znear), "zfar": float(env.rig.zfar),
             }  # fmt: skip
         return out
     finally:
@@ -435,7 +434,7 @@ class DatasetStore:
         self.ds = None
         self._videos: PreEncodedVideos | None = None
         self._pending: list[dict] = []
-        self._camera_meta: dict | None = None
+        self.camera_meta: dict | None = None  # meta/flatlab.json's cameras (computed at the first commit)
         # writer seconds (wall, and CPU of this process), for benchmarks
         self.timing = dict.fromkeys(("begin_s", "save_s", "commit_s", "begin_cpu_s", "save_cpu_s", "commit_cpu_s"), 0.0)
 
@@ -566,15 +565,15 @@ class DatasetStore:
         self.ds.finalize()
         self.ds = None
         records = self.records() + self._pending
-        if self._camera_meta is None:
-            self._camera_meta = camera_meta(self.recipe)
+        if self.camera_meta is None:
+            self.camera_meta = camera_meta(self.recipe)
         meta = {
             "format_version": FORMAT_VERSION,
             "generator": "flatlab collect",
             "recipe": self.recipe.to_dict(),
             "recipe_source": self.recipe.source,
             "recipe_fingerprint": self.recipe.fingerprint(),
-            "cameras": self._camera_meta,
+            "cameras": self.camera_meta,
             "camera_convention": CAMERA_CONVENTION,
             "frame_convention": "frame t = observation before step t + expert action at step t (joint targets)",
             "episodes_attempted": len(records),
