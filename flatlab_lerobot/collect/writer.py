@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from flatlab_lerobot.collect.recipe import Recipe, RecipeError
+from flatlab_lerobot.paths import CARD_TEMPLATE, portable_name
 from flatlab_lerobot.collect.runner import EpisodeResult
 from flatlab_lerobot.sim.core import ENV_STATE_DIM, ENV_STATE_NAMES, STATE_NAMES
 from flatlab_lerobot.sim.robot import ARMS
@@ -571,7 +572,7 @@ class DatasetStore:
             "format_version": FORMAT_VERSION,
             "generator": "flatlab collect",
             "recipe": self.recipe.to_dict(),
-            "recipe_source": self.recipe.source,
+            "recipe_source": portable_name(self.recipe.source),
             "recipe_fingerprint": self.recipe.fingerprint(),
             "cameras": self.camera_meta,
             "camera_convention": CAMERA_CONVENTION,
@@ -628,22 +629,6 @@ def _fsync_dir(path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------- card
-def card_template_path() -> Path:
-    return Path(__file__).resolve().parents[2] / "datasets" / "card_template.md"
-
-
-_FALLBACK_CARD = """---
-{card_data}
----
-
-# {name}
-
-FlatLab-LeRobot expert demonstrations ({episodes_saved} episodes, {episodes_successful} successful).
-
-Recipe: `{recipe_source}` (fingerprint `{fingerprint}`)
-
-{episode_table}
-"""
 CARD_TAGS = ("LeRobot", "FlatLab", "mujoco", "bimanual", "grasping")
 CARD_MAX_EPISODE_ROWS = 200  # the card's episode table; every record is in meta/flatlab_episodes.jsonl
 
@@ -749,8 +734,8 @@ def render_card(
     ``repo_id`` / ``tags`` / ``license`` are the hub target's (``flatlab push``)."""
     from huggingface_hub import DatasetCardData
 
-    p = card_template_path()
-    template = p.read_text() if p.is_file() else _FALLBACK_CARD
+    p = CARD_TEMPLATE
+    template = p.read_text()
     repo_id = repo_id or recipe.repo_id
     saved = [r for r in records if r.get("dataset_episode_index") is not None]
     n_att, n_saved = len(records), len(saved)
@@ -842,7 +827,9 @@ def render_card(
         "repo_id": repo_id,
         "codebase_version": (info or {}).get("codebase_version", "v3.0"),
         "description": recipe.description or "Scripted-expert demonstrations of grasping flat objects.",
-        "recipe_source": meta.get("recipe_source", recipe.source),
+        "recipe_source": portable_name(meta.get("recipe_source", recipe.source)),
+        "package_version": _package_version(),
+        "camera_note": _camera_note(feats, bool(cams)),
         "fingerprint": meta.get("recipe_fingerprint", recipe.fingerprint()),
         "fps": recipe.fps,
         "robot_type": recipe.robot_type,
@@ -879,6 +866,32 @@ def render_card(
         return template.format(**values)
     except (KeyError, IndexError, ValueError) as exc:
         raise RecipeError(f"{p}: bad placeholder in the card template: {exc}") from exc
+
+
+def _camera_note(feats: dict, has_cameras: bool) -> str:
+    """What the camera metadata lets one rebuild, naming only the modalities this dataset has."""
+    if not has_cameras:
+        return "This dataset has no camera."
+    note = ("Intrinsics (`fx, fy, cx, cy`, `K`) and extrinsics (`cam_to_world`, 4x4) of every camera are in "
+            "`meta/flatlab.json`")  # fmt: skip
+    depth = sorted(k for k in feats if k.startswith("observation.depth."))
+    if depth:
+        note += (f", so point clouds can be rebuilt from {', '.join(f'`{k}`' for k in depth)} "
+                 "(see `flatlab_lerobot.collect.writer.depth_to_points`)")  # fmt: skip
+    note += "."
+    clouds = [k for k in ("observation.pointcloud", "observation.object_pointcloud") if k in feats]
+    if clouds:
+        note += f" Point clouds are stored per frame in {' and '.join(f'`{k}`' for k in clouds)} (world frame)."
+    return note
+
+
+def _package_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("lerobot_env_flatlab")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _randomization_text(recipe: Recipe) -> str:
