@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.catalog import get_object
 from flatlab_lerobot.desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
 from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim
 from flatlab_lerobot.sim.robot import ARMS
