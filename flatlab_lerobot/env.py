@@ -135,7 +135,7 @@ class FlatLabEnv(gym.Env):
         self.object_id = object_id
         self.obj = self._objects[object_id]
         if scenario is not None:
-            from flatlab_lerobot.desk import make_desk_sim
+            from flatlab_lerobot.tasks.clear_desk import make_desk_sim
 
             self.sim = make_desk_sim(self.layout, self._cell, self.control_dt)
         else:
@@ -201,7 +201,7 @@ class FlatLabEnv(gym.Env):
         """The selected task's predicate (``grasp``: the benchmark's 2-s hold rule).  Once met, the
         episode counts as a success (it terminates on that step)."""
         if self.task in SCENARIOS:  # the privileged state follows the next object still on the table
-            from flatlab_lerobot.desk import advance_target
+            from flatlab_lerobot.tasks.clear_desk import advance_target
 
             advance_target(self.sim)
         self._task_done = self._task_done or bool(self.task_spec.success(self.sim, self._task_ctx))

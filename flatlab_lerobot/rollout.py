@@ -10,12 +10,12 @@ A *policy* here is any callable ``policy(obs) -> action`` with an optional ``res
 also sets ``.stage`` / ``.primitive`` (like :class:`ExpertPolicy`) gets them recorded per step, and
 one with a ``.strategy`` gets it recorded in the episode.
 
-Users: ``flatlab demo``, the task episodes (:func:`flatlab_lerobot.tasks.run_task_episode`),
+Users: ``flatlab demo``, the task episodes (:func:`run_task_episode`),
 dataset collection (:mod:`flatlab_lerobot.collect.runner`) and the primitive set
 (:mod:`flatlab_lerobot.learning.primitive_set`).  Loops that do not use it, and why:
 ``flatlab eval`` runs lerobot's own ``eval_policy`` (so a trial is exactly a ``lerobot-eval``
 episode) and reads the same outcome from the env (``env.failure_reason``, ``env.steps``); the
-clear_desk expert (:mod:`flatlab_lerobot.desk`) plans carries from the simulation itself across five
+clear_desk expert (:mod:`flatlab_lerobot.tasks.clear_desk`) plans carries from the simulation itself across five
 objects; the speed benchmark times bare physics steps.
 """
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flatlab_lerobot.catalog import get_object
-from flatlab_lerobot.desk import (
+from flatlab_lerobot.tasks.clear_desk import (
     DeskConfig,
     DeskItem,
     DeskLayout,

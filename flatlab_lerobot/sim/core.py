@@ -1,6 +1,6 @@
 """The simulation core: one cell (two arms + one object), stepping, control, contacts, success.
 
-A cell may also hold rigid *clutter* objects (a cluttered desk, :mod:`flatlab_lerobot.desk`).
+A cell may also hold rigid *clutter* objects (a cluttered desk, :mod:`flatlab_lerobot.tasks.clear_desk`).
 Then one of the objects is the *target* (:meth:`FlatLabSim.set_target`): the privileged state,
 the object-only point cloud and the success rule's status refer to it, while the 2-s hold rule
 is tracked for every object (``FlatLabSim.lifted`` latches per object when it was met).

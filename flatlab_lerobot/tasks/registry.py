@@ -14,7 +14,7 @@ A task episode runs in the env (``FlatLabEnv(task=...)``) through the one episod
 :func:`flatlab_lerobot.rollout.run_task_episode`; its record's ``metrics()`` are the per-episode
 metrics (success, time/steps to completion, TCP jerk (:func:`mean_squared_jerk`), primitives executed).
 :data:`SCENARIOS` chains several objects in ONE cell (``clear_desk``: a cluttered desk of five
-Test-beta objects cleared one after another, :mod:`flatlab_lerobot.desk`); :func:`run_scenario`
+Test-beta objects cleared one after another, :mod:`flatlab_lerobot.tasks.clear_desk`); :func:`run_scenario`
 runs one with the scripted expert and returns its metrics.
 """
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
+from flatlab_lerobot.tasks.clear_desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
 from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim
 from flatlab_lerobot.sim.robot import ARMS
 
@@ -281,7 +281,7 @@ TASKS: dict[str, TaskSpec] = {
 @dataclass(frozen=True)
 class Scenario:
     """A chained scenario: several objects in ONE cell, cleared one after another in the same
-    physics episode (:mod:`flatlab_lerobot.desk`).  ``success(sim, ctx)`` is its predicate,
+    physics episode (:mod:`flatlab_lerobot.tasks.clear_desk`).  ``success(sim, ctx)`` is its predicate,
     checked after every control step like a task's; ``reset`` the layout distribution (which
     objects, planar poses and yaws, clearing order; per-object step budgets)."""
 
