@@ -268,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:  # the validation report has its own parser (flatlab assets report --help)
-        from flatlab_lerobot.bench.validation import main as report_main
+        from flatlab_lerobot.evaluation.asset_validation import main as report_main
 
         return report_main(argv[1:])
     p = argparse.ArgumentParser(prog="flatlab assets")

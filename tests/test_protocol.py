@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flatlab_lerobot.bench.protocol import main
+from flatlab_lerobot.evaluation.protocol import main
 
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "MUJOCO_GL": "egl"}
