@@ -1,4 +1,4 @@
-"""The dataset card (``datasets/card_template.md`` rendered by ``collect.writer.render_card``): it names
+"""The dataset card (``datasets/card_template.md`` rendered by ``collect.card.render_card``): it names
 the recipe portably, lists only the modalities the dataset has, cites the paper and this project, and
 ``flatlab push --card-out`` writes it readable like any other file."""
 
@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from flatlab_lerobot.collect.recipe import load_recipe
-from flatlab_lerobot.collect.writer import render_card
+from flatlab_lerobot.collect.card import render_card
 from flatlab_lerobot.paths import CARD_TEMPLATE, DATASETS_DIR
 
 CAMS = {"front": {"width": 64, "height": 64, "fx": 50.0, "fy": 50.0, "cx": 32.0, "cy": 32.0}}

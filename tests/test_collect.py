@@ -19,14 +19,8 @@ import yaml
 from flatlab_lerobot.collect.collector import collect
 from flatlab_lerobot.collect.recipe import RecipeError, load_recipe, recipe_from_dict
 from flatlab_lerobot.collect.runner import run_episode
-from flatlab_lerobot.collect.writer import (
-    EPISODES_JSONL,
-    META_JSON,
-    READY,
-    DatasetStore,
-    depth_to_points,
-    episode_cameras,
-)
+from flatlab_lerobot.collect.features import depth_to_points, episode_cameras
+from flatlab_lerobot.collect.store import EPISODES_JSONL, META_JSON, READY, DatasetStore
 
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -330,7 +324,7 @@ def test_two_workers_give_the_same_dataset(tiny, tmp_path):
 def test_depth_quantiser_matches_lerobot():
     from lerobot.datasets.depth_utils import quantize_depth as lerobot_quantize
 
-    from flatlab_lerobot.collect.writer import quantize_depth, stream_specs
+    from flatlab_lerobot.collect.video import quantize_depth, stream_specs
 
     spec = stream_specs(recipe_from_dict(TINY, "t.yaml"))["observation.depth.front"]
     rng = np.random.default_rng(0)
@@ -347,7 +341,7 @@ def test_depth_quantiser_matches_lerobot():
 def test_video_stats_are_exact_and_in_lerobot_layout(dtype):
     from lerobot.datasets.compute_stats import get_feature_stats
 
-    from flatlab_lerobot.collect.writer import STATS_QUANTILES, image_stats
+    from flatlab_lerobot.collect.video import STATS_QUANTILES, image_stats
 
     rng = np.random.default_rng(1)
     if dtype == np.uint8:
@@ -379,7 +373,7 @@ def test_rerun_is_a_noop_and_extends(tiny, tmp_path):
     s = collect(recipe, tmp_path, progress=False)
     assert s["episodes_new"] == 0 and s["episodes_total"] == 2
     other = recipe_from_dict({**TINY, "seed": 8}, "x.yaml")
-    from flatlab_lerobot.collect.writer import DatasetMismatch
+    from flatlab_lerobot.collect.store import DatasetMismatch
 
     with pytest.raises(DatasetMismatch, match="different recipe"):
         collect(other, tmp_path, progress=False)
@@ -544,7 +538,7 @@ def test_bench_collect_writes_its_numbers(tmp_path):
         assert isinstance(v, (int, float)) and v > 0
     prof = res["profile"]["seconds"]
     assert prof["episode (run_episode)"] > 0 and prof["  physics (FlatLabSim.step)"] > 0
-    assert prof["    render passes (CameraRig._render)"] > 0 and prof["video encoding (writer.encode_stream)"] > 0
+    assert prof["    render passes (CameraRig._render)"] > 0 and prof["video encoding (video.encode_stream)"] > 0
     assert prof["  lerobot save_episode"] > 0
 
 

@@ -42,7 +42,7 @@ class EpisodeResult:
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     stages: list[str] = field(default_factory=list)
-    # feature -> (MP4 path, stats) once a worker has encoded the camera streams (writer.encode_videos);
+    # feature -> (MP4 path, stats) once a worker has encoded the camera streams (video.encode_videos);
     # the frames then no longer hold those arrays.
     videos: dict | None = None
     timing: dict = field(default_factory=dict)  # seconds: build, reset, loop (expert + step + frames), encode
