@@ -21,7 +21,7 @@ import yaml
 from flatlab_lerobot.constants import PROP_NAMES
 from flatlab_lerobot.paths import ENVS_DIR
 
-STRATEGIES = ("A", "B", "C")
+STRATEGY_LABELS = ("A", "B", "C")  # the catalog's strategy labels; strategies.STRATEGIES maps each to its stages
 MATERIALS = ("rigid", "deformable")
 SPLITS = ("train", "test_alpha", "test_beta", "reference")
 BENCHMARK_SPLITS = ("train", "test_alpha", "test_beta")
@@ -348,8 +348,8 @@ def parse_object(raw: dict[str, Any], source: str) -> ObjectSpec:
     if deformable != (shape in DEFORMABLE_FAMILIES):
         allowed = DEFORMABLE_FAMILIES if deformable else tuple(s for s in SHAPES if s not in DEFORMABLE_FAMILIES)
         raise v.err("shape", f"a {material} object needs one of {list(allowed)}, got {shape!r}")
-    strategy = v.choice("strategy", raw["strategy"], STRATEGIES)
-    paper = v.choice("paper_strategy", raw["paper_strategy"], STRATEGIES) if "paper_strategy" in raw else strategy
+    strategy = v.choice("strategy", raw["strategy"], STRATEGY_LABELS)
+    paper = v.choice("paper_strategy", raw["paper_strategy"], STRATEGY_LABELS) if "paper_strategy" in raw else strategy
     field_ = "paper_strategy" if "paper_strategy" in raw else "strategy"
     if paper not in info.strategies:
         raise v.err(field_, f"category '{category}' expects strategy {'/'.join(info.strategies)}, got {paper!r}")

@@ -19,12 +19,16 @@ ROOT = Path(flatlab_lerobot.__file__).parent
 
 # Layers, lowest first: a module may import its own layer's modules and the layers below only.
 LAYERS: list[tuple[str, ...]] = [
-    ("paths", "constants"),
-    ("catalog",),
-    ("assets",),
-    ("sim",),
-    ("primitives", "strategies"),
-    ("tasks", "env", "rollout", "transforms"),
+    ("paths", "constants"),  # leaves
+    ("catalog",),  # typed specs from envs/ YAML
+    ("assets",),  # geometry builders
+    ("sim",),  # scene, physics, robot, cameras
+    ("primitives", "strategies"),  # the scripted expert
+    ("tasks", "transforms"),  # what an episode must achieve; object transforms and rule labels
+    ("env",),  # the gymnasium env
+    ("rollout", "demo"),  # the one episode loop and its simplest user
+    ("lerobot_env", "policies", "collect", "learning", "evaluation", "bench", "viz", "assets_cli"),  # LeRobot-facing
+    ("lerobot_plugin", "cli"),  # entry points
 ]
 
 
@@ -102,6 +106,10 @@ def _layer(mod: str) -> int | None:
         if top in names:
             return i
     return None
+
+
+def test_every_module_has_a_layer():
+    assert not [m for m in MODULES if m != PKG and _layer(m) is None], "add new top-level modules to LAYERS"
 
 
 def test_module_graph_has_no_cycle():
