@@ -1,12 +1,13 @@
 """Every training recipe in ``policies/`` (JSON for ``lerobot-train --config_path``) parses as lerobot's
-``TrainPipelineConfig``, and the package finds it (and the collection recipes) through ``paths.py``."""
+``TrainPipelineConfig``, every collection recipe in ``datasets/`` loads, and the package finds both
+through ``paths.py`` (so an installed wheel, which ships them, does too)."""
 
 import json
 
 import draccus
 import pytest
 
-from flatlab_lerobot.paths import POLICIES_DIR
+from flatlab_lerobot.paths import DATASETS_DIR, POLICIES_DIR
 
 RECIPES = sorted(POLICIES_DIR.glob("*.json"))
 
@@ -27,3 +28,17 @@ def test_recipe_parses_as_a_train_pipeline_config(path):
     assert cfg.policy is not None and cfg.policy.type == raw["policy"]["type"]
     assert cfg.dataset.repo_id == raw["dataset"]["repo_id"]
     assert cfg.steps == raw.get("steps", cfg.steps)
+
+
+@pytest.mark.parametrize("path", sorted(DATASETS_DIR.glob("*.yaml")), ids=lambda p: p.name)
+def test_collection_recipe_loads_by_path_and_by_name(path):
+    from flatlab_lerobot.collect.recipe import load_recipe
+
+    assert load_recipe(path).name == load_recipe(path.stem).name == load_recipe(f"datasets/{path.name}").name
+
+
+def test_unknown_recipe_name_lists_the_shipped_ones():
+    from flatlab_lerobot.collect.recipe import RecipeError, load_recipe
+
+    with pytest.raises(RecipeError, match="no_such_recipe: recipe file not found .*tiny_rigid"):
+        load_recipe("no_such_recipe")

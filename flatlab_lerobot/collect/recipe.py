@@ -31,6 +31,7 @@ from typing import Any
 
 import yaml
 
+from flatlab_lerobot.paths import DATASETS_DIR
 from flatlab_lerobot.sim.domain import Domain, sample_domain
 from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
@@ -340,10 +341,16 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
 
 
 def load_recipe(path: str | Path) -> Recipe:
+    """The recipe in file ``path``; a path that is not a file may name a shipped recipe
+    (``datasets/<name>.yaml`` of the project or the installed wheel: ``tiny_rigid``, ``datasets/tiny_rigid.yaml``)."""
     path = Path(path)
     source = str(path)
     if not path.is_file():
-        raise RecipeError(f"{source}: recipe file not found")
+        shipped = DATASETS_DIR / (path.name if path.suffix else f"{path.name}.yaml")
+        if not shipped.is_file():
+            names = sorted(p.stem for p in DATASETS_DIR.glob("*.yaml"))
+            raise RecipeError(f"{source}: recipe file not found (shipped recipes: {', '.join(names)})")
+        path, source = shipped, str(shipped)
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
