@@ -23,7 +23,7 @@ A sample (one row of ``samples.parquet``, one entry of each ``.npy`` at ``sample
   ``contact`` (fingers touch the object).  An arm the primitive does not command keeps its
   commanded pose and width (start = end).  ``arms``: the commanded arms; ``moving_arms``: those
   whose commanded pose or width changes (transit to the start pose included).
-* ``environment_state`` (14, privileged; names in ``strategies.ENV_STATE_NAMES``) at the capture.
+* ``environment_state`` (14, privileged; names in ``sim.core.ENV_STATE_NAMES``) at the capture.
 * ``demo_success`` / ``demo_failure_reason``: the demo's outcome.  Failed demos are kept;
   filter on ``demo_success`` to train on successful demonstrations only.
 
@@ -200,7 +200,7 @@ def _pose_changed(a, b) -> bool:
 
 
 class _PrimitiveTap:
-    """Sees every primitive the expert executes, without touching ``strategies.py``: the
+    """Sees every primitive the expert executes, without touching the strategies package: the
     expert's runner is wrapped (this instance only).  The runner's action stream is pure
     kinematics of the commanded joints, so it is expanded eagerly; this tells how many of its
     steps are the joint-space transit (a ``move`` primitive cannot be told from its transit by
@@ -446,7 +446,7 @@ COLUMN_DOCS = {
     "{arm}_tcp_pos / _tcp_quat": "TCP pose measured in the sim at the capture",
     "{arm}_gripper_measured": "finger opening measured at the capture (m)",
     "{arm}_contact": "the arm's fingers touch the object at the capture",
-    "environment_state": "privileged state (14), names in strategies.ENV_STATE_NAMES",
+    "environment_state": "privileged state (14), names in sim.core.ENV_STATE_NAMES",
     "scene_points_seen / object_points_seen": "points before sampling (0 object points: object cloud is zeros)",
     "demo_success": "the demo met the grasp success rule", "demo_failure_reason": "why not ('' on success)",
     "demo_steps": "control steps the demo ran",
