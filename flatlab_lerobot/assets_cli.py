@@ -72,12 +72,12 @@ def validate(compile_models: bool = True) -> list[str]:
     if compile_models:
         import mujoco
 
-        from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene
+        from flatlab_lerobot.catalog import REFERENCE_OBJECTS
         from flatlab_lerobot.sim.scene import CellConfig, build_model
 
         for sid in scenes:
             try:
-                m = build_model(CellConfig(**cell_config_for_scene(sid)), objects[REFERENCE_OBJECTS["B"]])
+                m = build_model(CellConfig.from_scene(sid), objects[REFERENCE_OBJECTS["B"]])
                 d = mujoco.MjData(m)
                 mujoco.mj_step(m, d)
                 warn = [i for i, w in enumerate(d.warning) if w.number]
@@ -210,11 +210,11 @@ def render_scene(scene_id: str, object_id: str | None = None, width: int = 480, 
     import mujoco
     from PIL import Image
 
-    from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, get_object
+    from flatlab_lerobot.catalog import REFERENCE_OBJECTS, get_object
     from flatlab_lerobot.sim.core import FlatLabSim
     from flatlab_lerobot.sim.scene import CellConfig
 
-    sim = FlatLabSim(get_object(object_id or REFERENCE_OBJECTS["B"]), CellConfig(**cell_config_for_scene(scene_id)))
+    sim = FlatLabSim(get_object(object_id or REFERENCE_OBJECTS["B"]), CellConfig.from_scene(scene_id))
     sim.reset()
     m = sim.model
     fovy = m.vis.global_.fovy
@@ -268,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:  # the validation report has its own parser (flatlab assets report --help)
-        from flatlab_lerobot.bench.validation import main as report_main
+        from flatlab_lerobot.evaluation.asset_validation import main as report_main
 
         return report_main(argv[1:])
     p = argparse.ArgumentParser(prog="flatlab assets")

@@ -18,9 +18,10 @@ from typing import Any
 
 import yaml
 
+from flatlab_lerobot.constants import PROP_NAMES
 from flatlab_lerobot.paths import ENVS_DIR
 
-STRATEGIES = ("A", "B", "C")
+STRATEGY_LABELS = ("A", "B", "C")  # the catalog's strategy labels; strategies.STRATEGIES maps each to its stages
 MATERIALS = ("rigid", "deformable")
 SPLITS = ("train", "test_alpha", "test_beta", "reference")
 BENCHMARK_SPLITS = ("train", "test_alpha", "test_beta")
@@ -347,8 +348,8 @@ def parse_object(raw: dict[str, Any], source: str) -> ObjectSpec:
     if deformable != (shape in DEFORMABLE_FAMILIES):
         allowed = DEFORMABLE_FAMILIES if deformable else tuple(s for s in SHAPES if s not in DEFORMABLE_FAMILIES)
         raise v.err("shape", f"a {material} object needs one of {list(allowed)}, got {shape!r}")
-    strategy = v.choice("strategy", raw["strategy"], STRATEGIES)
-    paper = v.choice("paper_strategy", raw["paper_strategy"], STRATEGIES) if "paper_strategy" in raw else strategy
+    strategy = v.choice("strategy", raw["strategy"], STRATEGY_LABELS)
+    paper = v.choice("paper_strategy", raw["paper_strategy"], STRATEGY_LABELS) if "paper_strategy" in raw else strategy
     field_ = "paper_strategy" if "paper_strategy" in raw else "strategy"
     if paper not in info.strategies:
         raise v.err(field_, f"category '{category}' expects strategy {'/'.join(info.strategies)}, got {paper!r}")
@@ -535,11 +536,9 @@ def parse_scene(raw: dict[str, Any], source: str, materials: dict[str, MaterialS
     props = raw.get("props", [])
     if not isinstance(props, list) or not all(isinstance(p, str) for p in props):
         raise v.err("props", f"must be a list of strings, got {props!r}")
-    from flatlab_lerobot.sim.room import PROPS  # the prop builders (numpy only, no cycle)
-
     for i, p in enumerate(props):
-        if p not in PROPS:
-            raise v.err(f"props[{i}]", f"unknown prop {p!r} (known: {sorted(PROPS)})")
+        if p not in PROP_NAMES:
+            raise v.err(f"props[{i}]", f"unknown prop {p!r} (known: {sorted(PROP_NAMES)})")
     return SceneSpec(
         id=sid, room=v.choice("room", raw["room"], ROOMS), name=v.string("name", raw["name"]),
         table_size=size, table_height=height,
@@ -573,27 +572,11 @@ def load_scenes(directory: Path | None = None, materials_dir: Path | None = None
     return _load_entries(directory or ENVS_DIR / "scenes", "scenes", parse_scene, "scene", materials=materials)
 
 
-def cell_config_for_scene(scene_id: str, scenes_dir: Path | None = None, materials_dir: Path | None = None) -> dict[str, Any]:
-    """Keyword arguments for :class:`flatlab_lerobot.sim.scene.CellConfig` of scene ``scene_id``:
-    table geometry, edge profile, material (friction, colours, pattern), room colours and props.
-    The arm bases follow the table (``arm_base_y`` = half-width + 0.2 m, ``CellConfig``'s default)."""
+def get_scene(scene_id: str, scenes_dir: Path | None = None, materials_dir: Path | None = None) -> tuple[SceneSpec, MaterialSpec]:
+    """Scene ``scene_id`` of ``envs/scenes`` (or ``scenes_dir``) and its table material.  The
+    simulation's cell is built from them by :meth:`flatlab_lerobot.sim.scene.CellConfig.from_scene`."""
     scenes = load_scenes(scenes_dir, materials_dir)
     if scene_id not in scenes:
         raise KeyError(f"unknown scene id {scene_id!r}; known: {sorted(scenes)}")
     s = scenes[scene_id]
-    mat = load_materials(materials_dir)[s.material]
-    return {
-        "table_height": s.table_height,
-        "table_size": s.table_size,
-        "table_thickness": s.table_thickness,
-        "table_friction": mat.friction,
-        "table_rgba": mat.rgba,
-        "table_rgba2": mat.rgba2,
-        "table_pattern": mat.pattern,
-        "edge": s.edge,
-        "room": s.room,
-        "wall_rgba": s.wall_rgba,
-        "floor_rgba": s.floor_rgba,
-        "props": s.props,
-        "scene_id": s.id,
-    }
+    return s, load_materials(materials_dir)[s.material]

@@ -12,7 +12,7 @@ from flatlab_lerobot.paths import OUTPUTS_DIR
 
 PASSTHROUGH = {
     "bench": "flatlab_lerobot.bench.speed",
-    "eval": "flatlab_lerobot.bench.protocol",
+    "eval": "flatlab_lerobot.evaluation.protocol",
     "assets": "flatlab_lerobot.assets_cli",
     "collect": "flatlab_lerobot.collect",
     "push": "flatlab_lerobot.collect.hub",

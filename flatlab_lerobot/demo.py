@@ -10,21 +10,13 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
 
 import numpy as np
 
-from flatlab_lerobot.catalog import REFERENCE_OBJECTS, get_object
-from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
-from flatlab_lerobot.strategies import Expert
-
-
-def sample_placement(seed: int, planar: float = 0.05, yaw_deg: float = 30.0) -> tuple[float, float, float]:
-    """The benchmark's default reset distribution: planar offset ±``planar`` m, yaw ±``yaw_deg``."""
-    from flatlab_lerobot.tasks import ResetDistribution
-
-    return ResetDistribution(planar, yaw_deg).sample(seed)
+from flatlab_lerobot.catalog import REFERENCE_OBJECTS
+from flatlab_lerobot.env import FlatLabEnv
+from flatlab_lerobot.rollout import ExpertPolicy, rollout
 
 
 def run_expert_episode(
@@ -34,42 +26,30 @@ def run_expert_episode(
     max_time: float = 30.0,
     on_step=None,
 ) -> dict:
-    """Run the scripted expert once; ``on_step(sim, stage, primitive_index)`` is called after every
-    control step.  Returns the episode record (success, time, failure reason, ...)."""
-    sim = FlatLabSim(get_object(object_id))
-    x, y, yaw = sample_placement(seed)
-    sim.reset(x, y, yaw)
-    expert = Expert(sim.cell, sim.control_dt)
-    gen = expert.episode(strategy, lambda: (sim.joint_positions(), sim.environment_state()))
-    reason, stage, n_prims = "", "", 0
-    t0 = time.perf_counter()
+    """Run the scripted expert once in the default cell (placement: the env's reset distribution
+    for ``seed``), for at most ``max_time`` simulated seconds of control; ``on_step(sim, stage,
+    primitive_index)`` is called after every control step.  Returns the episode record (success,
+    time, failure reason, ...)."""
+    env = FlatLabEnv(object_id=object_id, episode_length=round(max_time / 0.1), control_dt=0.1,
+                     obs_pixels=False, obs_pointcloud=False)  # fmt: skip
+    after = None if on_step is None else (lambda st: on_step(st.env.sim, st.stage, st.primitive))
     try:
-        while sim.data.time < max_time:
-            stage, prim_index, action = next(gen)
-            sim.step(action)
-            n_prims = prim_index + 1
-            if on_step is not None:
-                on_step(sim, stage, prim_index)
-            if sim.is_success():
-                break
-    except SimulationDiverged as exc:
-        reason = f"diverged: {exc}"
-    st = sim.grasp_status()
-    success = sim.is_success()
-    if not success and not reason:
-        reason = "timeout: " + st.shortfall
+        ep = rollout(env, ExpertPolicy(strategy, env.cell, env.control_dt), seed=seed, after_step=after)
+    finally:
+        env.close()
+    x, y, yaw = ep.placement
     return {
         "object_id": object_id,
         "strategy": strategy,
         "seed": seed,
         "placement": {"x": x, "y": y, "yaw_deg": float(np.degrees(yaw))},
-        "success": bool(success),
-        "sim_time_s": round(float(sim.data.time), 3),
-        "wall_time_s": round(time.perf_counter() - t0, 3),
-        "primitives": n_prims,
-        "final_clearance_m": round(st.clearance, 4),
-        "failure_reason": reason,
-        "_sim": sim,
+        "success": ep.success,
+        "sim_time_s": round(ep.sim_time_s, 3),
+        "wall_time_s": round(ep.wall_s, 3),
+        "primitives": max(ep.primitives, default=-1) + 1,
+        "final_clearance_m": round(env.sim.grasp_status().clearance, 4),
+        "failure_reason": ep.failure_reason,
+        "_sim": env.sim,
     }
 
 

@@ -13,16 +13,19 @@ Observation (a ``Dict``):
 * ``cell`` (7,) float32: the cell's calibration, constant per scene: table top height, depth, width,
   thickness and the arm bases (``sim.scene.CALIBRATION_NAMES``).  Policies that plan with a
   kinematic model build it from this (``CellConfig.from_calibration``).
-* ``environment_state`` (14,) float32: privileged state, names in ``strategies.ENV_STATE_NAMES``.
+* ``environment_state`` (14,) float32: privileged state, names in ``sim.core.ENV_STATE_NAMES``.
 
 Action: ``action_mode="joint"`` (default): (16,) joint targets + gripper width per arm.
 ``action_mode="ee"``: (14,) per arm [x, y, z, rotvec(3), gripper width] of the TCP in the world
 frame, turned into joint targets by the sim's IK.
 
 Reward is sparse (1.0 on the step the success rule is met).  The episode terminates on success
-(object lifted >= 5 cm off the table, held >= 2 s with < 1 cm slip) or when the physics diverges
-(``info["failure_reason"]``); it is truncated after ``episode_length`` steps.  ``info["is_success"]``
-is set on every reset and step.
+(object lifted >= 5 cm off the table, held >= 2 s with < 1 cm slip) or when the physics diverges;
+it is truncated after ``episode_length`` steps.  ``info["is_success"]`` and ``info["steps"]`` (control
+steps since the reset) are set on every reset and step; on every terminal step (terminated or
+truncated) ``info["failure_reason"]`` says why it failed, in the vocabulary of
+:class:`~flatlab_lerobot.sim.core.FailureReason` (``""`` on success).  The same outcome stays readable
+after the episode as ``env.steps``, ``env.failure`` and ``env.failure_reason``.
 
 The cell: ``scene`` (an ``envs/scenes`` id, e.g. ``kitchen_counter``: table size, height, edge,
 material, room dressing) or ``cell`` (a ``CellConfig``); neither = the plain default cell.
@@ -44,13 +47,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from flatlab_lerobot.catalog import REFERENCE_OBJECTS, cell_config_for_scene, load_objects
+from flatlab_lerobot.catalog import REFERENCE_OBJECTS, load_objects
 from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
-from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
+from flatlab_lerobot.sim.core import EE_POSE_NAMES, ENV_STATE_DIM, STATE_NAMES, FailureReason, FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.domain import Domain, apply_domain
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.sim.scene import CALIBRATION_NAMES, CellConfig
-from flatlab_lerobot.tasks import SCENARIOS, TASKS, task_context
+from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG, SCENARIOS, TASKS, ResetDistribution, task_context
 
 GYM_ID = "lerobot_env_flatlab/FlatLab-v0"
 TASK_DESCRIPTIONS = {
@@ -73,8 +76,8 @@ class FlatLabEnv(gym.Env):
         n_object_points: int = 256,
         pointcloud_cameras: tuple[str, ...] | list[str] | str | None = None,
         action_mode: str = "joint",
-        xy_range: float = 0.05,
-        yaw_range_deg: float = 30.0,
+        xy_range: float = DEFAULT_PLANAR,
+        yaw_range_deg: float = DEFAULT_YAW_DEG,
         episode_length: int = 300,
         control_dt: float = 0.1,
         render_mode: str | None = "rgb_array",
@@ -102,7 +105,7 @@ class FlatLabEnv(gym.Env):
         self.image_size = int(image_size)
         self.n_points, self.n_object_points = int(n_points), int(n_object_points)
         self.action_mode = action_mode
-        self.xy_range, self.yaw_range = float(xy_range), np.deg2rad(float(yaw_range_deg))
+        self.reset_distribution = ResetDistribution(float(xy_range), float(yaw_range_deg))
         self.episode_length = int(episode_length)
         self.control_dt = float(control_dt)
         self.render_mode = render_mode
@@ -112,16 +115,17 @@ class FlatLabEnv(gym.Env):
         if scene and cell is not None:
             raise ValueError("give either scene (an envs/scenes id) or cell (a CellConfig), not both")
         self.scene = scene or None  # None: the default cell
-        self._cell = CellConfig(**cell_config_for_scene(scene)) if scene else cell
+        self._cell = CellConfig.from_scene(scene) if scene else cell
         self._objects = load_objects()
         self.sim: FlatLabSim | None = None
         self.rig: CameraRig | None = None
         self._task_override = task
         self._build(object_id)
         self._make_spaces()
-        self._steps = 0
+        self.steps = 0  # control steps since the last reset
+        self.failure: FailureReason | None = None  # why the episode failed, once it has ended
+        self.failure_detail = ""
         self._last_obs = None
-        self._done_reason: str | None = None
 
     # ------------------------------------------------------------------ construction
     def _build(self, object_id: str, layout=None) -> None:
@@ -136,7 +140,7 @@ class FlatLabEnv(gym.Env):
         self.object_id = object_id
         self.obj = self._objects[object_id]
         if scenario is not None:
-            from flatlab_lerobot.desk import make_desk_sim
+            from flatlab_lerobot.tasks.clear_desk import make_desk_sim
 
             self.sim = make_desk_sim(self.layout, self._cell, self.control_dt)
         else:
@@ -162,10 +166,10 @@ class FlatLabEnv(gym.Env):
     def _make_spaces(self) -> None:
         s = self.image_size
         obs = {
-            "agent_pos": spaces.Box(-np.inf, np.inf, (16,), np.float32),
-            "ee_pose": spaces.Box(-np.inf, np.inf, (14,), np.float32),
+            "agent_pos": spaces.Box(-np.inf, np.inf, (len(STATE_NAMES),), np.float32),
+            "ee_pose": spaces.Box(-np.inf, np.inf, (len(EE_POSE_NAMES),), np.float32),
             "cell": spaces.Box(-np.inf, np.inf, (len(CALIBRATION_NAMES),), np.float32),
-            "environment_state": spaces.Box(-np.inf, np.inf, (14,), np.float32),
+            "environment_state": spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float32),
         }
         if self.obs_pixels:
             obs["pixels"] = spaces.Dict({c: spaces.Box(0, 255, (s, s, 3), np.uint8) for c in self.cameras})
@@ -173,7 +177,7 @@ class FlatLabEnv(gym.Env):
             obs["pointcloud"] = spaces.Box(-np.inf, np.inf, (self.n_points, 3), np.float32)
             obs["object_pointcloud"] = spaces.Box(-np.inf, np.inf, (self.n_object_points, 3), np.float32)
         self.observation_space = spaces.Dict(obs)
-        m, ids = self.sim.model, self.sim._ctrl_ids()
+        m, ids = self.sim.model, self.sim.ctrl_ids()
         lo, hi = m.actuator_ctrlrange[ids, 0].astype(np.float32), m.actuator_ctrlrange[ids, 1].astype(np.float32)
         if self.action_mode == "joint":
             self.action_space = spaces.Box(lo, hi, (16,), np.float32)
@@ -206,7 +210,7 @@ class FlatLabEnv(gym.Env):
         """The selected task's predicate (``grasp``: the benchmark's 2-s hold rule).  Once met, the
         episode counts as a success (it terminates on that step)."""
         if self.task in SCENARIOS:  # the privileged state follows the next object still on the table
-            from flatlab_lerobot.desk import advance_target
+            from flatlab_lerobot.tasks.clear_desk import advance_target
 
             advance_target(self.sim)
         self._task_done = self._task_done or bool(self.task_spec.success(self.sim, self._task_ctx))
@@ -220,6 +224,7 @@ class FlatLabEnv(gym.Env):
             "clearance": float(st.clearance),
             "held_for": float(st.held_for),
             "holding_arms": ",".join(st.holding_arms),
+            "steps": self.steps,
         }
         return info
 
@@ -231,8 +236,7 @@ class FlatLabEnv(gym.Env):
             self._build(options["object_id"])
             self._make_spaces()
         rng = self.np_random
-        x, y = rng.uniform(-self.xy_range, self.xy_range, size=2)
-        yaw = rng.uniform(-self.yaw_range, self.yaw_range)
+        x, y, yaw = self.reset_distribution.sample(rng)
         if "placement" in options:  # explicit (x, y, yaw)
             x, y, yaw = (float(v) for v in options["placement"])
         if self.task in SCENARIOS:  # a new desk layout (objects, poses) per reset, or options["desk_seed"]'s
@@ -247,8 +251,8 @@ class FlatLabEnv(gym.Env):
         self.sim.reset(*self.placement, home_offsets=domain.home_offsets if domain else ())
         self._task_ctx = task_context(self.task_spec, self.sim)
         self._task_done = False
-        self._steps = 0
-        self._done_reason = None
+        self.steps = 0
+        self.failure, self.failure_detail = None, ""
         obs = self._observe()
         self._last_obs = obs
         info = self._info()
@@ -264,22 +268,40 @@ class FlatLabEnv(gym.Env):
         q = self.sim.solve_ik(targets)
         return np.r_[q[:7], a[0, 6], q[7:], a[1, 6]]
 
+    @property
+    def failure_reason(self) -> str:
+        """``"<reason>"`` / ``"<reason>: <detail>"`` once the episode failed; ``""`` otherwise."""
+        return self.failure.text(self.failure_detail) if self.failure else ""
+
+    def _end(self, failure: FailureReason | None, detail: str = "") -> None:
+        self.failure, self.failure_detail = failure, detail
+
     def step(self, action):
         action = np.asarray(action, dtype=float)
         try:
             target = self.ee_to_joint(action) if self.action_mode == "ee" else action
             self.sim.step(target)
         except SimulationDiverged as e:
-            self._steps += 1
-            self._done_reason = f"simulation diverged: {e}"
-            info = {"is_success": False, "object_id": self.object_id, "failure_reason": self._done_reason}
+            self.steps += 1
+            self._end(FailureReason.DIVERGED, str(e))
+            info = {"is_success": False, "object_id": self.object_id, "steps": self.steps,
+                    "failure_reason": self.failure_reason}  # fmt: skip
             return self._last_obs, 0.0, True, False, info
-        self._steps += 1
+        self.steps += 1
         obs = self._observe()
         self._last_obs = obs
         info = self._info()
         success = info["is_success"]
-        truncated = (not success) and self._steps >= self.episode_length
+        truncated = (not success) and self.steps >= self.episode_length
+        if success:
+            self._end(None)
+        elif truncated:  # which part of the task's rule it missed
+            if self.task == "grasp":
+                self._end(self.sim.grasp_status().shortfall)
+            else:
+                self._end(FailureReason.TIMEOUT, self.task)
+        if success or truncated:
+            info["failure_reason"] = self.failure_reason
         return obs, float(success), bool(success), bool(truncated), info
 
     def render(self):

@@ -55,6 +55,11 @@ def _interp_pose(motion: ArmMotion, s: float):
     return p, R
 
 
+def joint_action(q14: np.ndarray, grip: dict[str, float]) -> np.ndarray:
+    """The (16,) action of 14 arm joints and per-arm gripper widths: left 7 + gripper, right 7 + gripper."""
+    return np.r_[q14[:7], grip["left"], q14[7:], grip["right"]]
+
+
 class PrimitiveRunner:
     """Executes primitives as joint targets.  ``ik(targets, seed14) -> q14`` and ``fk(q14) ->
     {arm: (pos, rot)}`` come from a kinematic model of the robot (see ``sim.core``)."""
@@ -80,7 +85,7 @@ class PrimitiveRunner:
             for k in range(1, n + 1):
                 s = 0.5 - 0.5 * np.cos(np.pi * k / n)  # smooth start and stop
                 qk = q + (q_goal - q) * s
-                yield "move", self._action(qk, grip)
+                yield "move", joint_action(qk, grip)
             q = q_goal
         # 2. the primitive: Cartesian line, gripper ramp
         n = max(1, int(round(prim.duration / self.dt)))
@@ -91,9 +96,5 @@ class PrimitiveRunner:
                 q = self.ik(targets, q)
             for a, m in prim.motions.items():
                 grip[a] = (1 - s) * m.gripper[0] + s * m.gripper[1]
-            yield prim.name, self._action(q, grip)
+            yield prim.name, joint_action(q, grip)
         self.q, self.grip = q, grip
-
-    @staticmethod
-    def _action(q14: np.ndarray, grip: dict[str, float]) -> np.ndarray:
-        return np.r_[q14[:7], grip["left"], q14[7:], grip["right"]]

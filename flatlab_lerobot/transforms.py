@@ -40,7 +40,7 @@ from flatlab_lerobot.catalog import (
     FAMILIES,
     RIGID_SIZE,
     SHEET_SIZE,
-    STRATEGIES,
+    STRATEGY_LABELS,
     ObjectSpec,
 )
 from flatlab_lerobot.sim.scene import CellConfig
@@ -74,7 +74,7 @@ LABEL_RULE = (
     f"deformable -> C; rigid: thickness >= {B_THICKNESS} m, or thickness >= {B_SQUEEZE_THICKNESS} m "
     f"with longer side >= {B_LARGE_SIDE} m -> B; else A"
 )
-LABEL_INDEX = {s: i for i, s in enumerate(STRATEGIES)}
+LABEL_INDEX = {s: i for i, s in enumerate(STRATEGY_LABELS)}
 """Strategy letter -> integer class (A=0, B=1, C=2)."""
 
 

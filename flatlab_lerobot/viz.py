@@ -7,7 +7,7 @@ viewer adds, for a FlatLab collection (``flatlab collect``):
   RGB and depth images appear in the 3D view;
 * the scene and object point clouds (``observation.pointcloud`` / ``observation.object_pointcloud``),
   or, for a dataset with depth but no clouds, the scene cloud rebuilt from depth with the camera
-  metadata (:func:`flatlab_lerobot.collect.writer.depth_to_points`), coloured by the RGB image;
+  metadata (:func:`flatlab_lerobot.collect.features.depth_to_points`), coloured by the RGB image;
 * both arms' TCP poses as axes and their growing trajectories (``observation.ee_pose``);
 * the stage as a text log, stage index / gripper widths / joint state / action as scalars;
 * the episode's strategy, object, seed, success and failure reason as a text document;
@@ -72,7 +72,7 @@ class EpisodeSource:
     @property
     def cameras(self) -> dict:
         """Intrinsics/extrinsics per camera in this episode (jittered cameras: the episode's pose)."""
-        from flatlab_lerobot.collect.writer import episode_cameras
+        from flatlab_lerobot.collect.features import episode_cameras
 
         return episode_cameras((self.flatlab_meta or {}).get("cameras") or {}, self.record)
 
@@ -159,7 +159,7 @@ def table_box(src: EpisodeSource, first_frame: dict | None = None) -> tuple[np.n
 
 def depth_cloud(depths: dict, cams: dict, rgbs: dict | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """World points (and RGB colours when images are given) from per-camera depth maps in metres."""
-    from flatlab_lerobot.collect.writer import depth_to_points
+    from flatlab_lerobot.collect.features import depth_to_points
 
     pts, cols = [], []
     for cam, d in depths.items():

@@ -13,7 +13,6 @@ from flatlab_lerobot.catalog import (
     REFERENCE_OBJECTS,
     CatalogError,
     benchmark_objects,
-    cell_config_for_scene,
     check_counts,
     load_materials,
     load_objects,
@@ -191,7 +190,7 @@ def test_scenes_and_materials():
     rooms = collections.Counter(s.room for s in scenes.values())
     assert rooms == {r: 3 for r in ("Bedroom", "Kitchen", "Laundryroom", "Livingroom", "Study", "Warehouse")}
     for sid in scenes:
-        cell = CellConfig(**cell_config_for_scene(sid))
+        cell = CellConfig.from_scene(sid)
         assert cell.table_friction == mats[scenes[sid].material].friction
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flatlab_lerobot.catalog import get_object
-from flatlab_lerobot.desk import (
+from flatlab_lerobot.tasks.clear_desk import (
     DeskConfig,
     DeskItem,
     DeskLayout,
@@ -141,7 +141,7 @@ def test_no_action_fails():
     short = DeskConfig(budget={"A": 20, "B": 20})  # the arms stay home: nothing can change
     ep = run_desk_episode(0, strategy=None, config=short)
     assert len(ep.success) == 100 and not any(ep.success)
-    assert ep.failure == "cleared 0/5" and not any(o["lifted"] or o["cleared"] for o in ep.per_object)
+    assert ep.failure == "timeout: cleared 0/5" and not any(o["lifted"] or o["cleared"] for o in ep.per_object)
 
 
 def test_two_b_objects_are_cleared_in_one_cell():

@@ -19,14 +19,8 @@ import yaml
 from flatlab_lerobot.collect.collector import collect
 from flatlab_lerobot.collect.recipe import RecipeError, load_recipe, recipe_from_dict
 from flatlab_lerobot.collect.runner import run_episode
-from flatlab_lerobot.collect.writer import (
-    EPISODES_JSONL,
-    META_JSON,
-    READY,
-    DatasetStore,
-    depth_to_points,
-    episode_cameras,
-)
+from flatlab_lerobot.collect.features import depth_to_points, episode_cameras
+from flatlab_lerobot.collect.store import EPISODES_JSONL, META_JSON, READY, DatasetStore
 
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -277,7 +271,7 @@ def test_domain_randomization_is_recorded_applied_and_rebuilds_clouds(tmp_path):
     try:
         env.reset(seed=rec["seed"], options={"placement": sample_placement(recipe, rec["seed"]), "domain": dom})
         m, o = env.sim.model, env.sim.objects[0]
-        nominal = env.sim._domain_nominal
+        nominal = env.sim.domain_nominal
         assert m.body_mass[o.body] == pytest.approx(nominal.body_mass[o.body] * dom.mass_scale)
         assert m.geom_friction[o.geoms[0], 0] == pytest.approx(nominal.geom_friction[o.geoms[0], 0] * dom.friction_scale)
         for c in ("front", "top"):
@@ -330,7 +324,7 @@ def test_two_workers_give_the_same_dataset(tiny, tmp_path):
 def test_depth_quantiser_matches_lerobot():
     from lerobot.datasets.depth_utils import quantize_depth as lerobot_quantize
 
-    from flatlab_lerobot.collect.writer import quantize_depth, stream_specs
+    from flatlab_lerobot.collect.video import quantize_depth, stream_specs
 
     spec = stream_specs(recipe_from_dict(TINY, "t.yaml"))["observation.depth.front"]
     rng = np.random.default_rng(0)
@@ -347,7 +341,7 @@ def test_depth_quantiser_matches_lerobot():
 def test_video_stats_are_exact_and_in_lerobot_layout(dtype):
     from lerobot.datasets.compute_stats import get_feature_stats
 
-    from flatlab_lerobot.collect.writer import STATS_QUANTILES, image_stats
+    from flatlab_lerobot.collect.video import STATS_QUANTILES, image_stats
 
     rng = np.random.default_rng(1)
     if dtype == np.uint8:
@@ -379,7 +373,7 @@ def test_rerun_is_a_noop_and_extends(tiny, tmp_path):
     s = collect(recipe, tmp_path, progress=False)
     assert s["episodes_new"] == 0 and s["episodes_total"] == 2
     other = recipe_from_dict({**TINY, "seed": 8}, "x.yaml")
-    from flatlab_lerobot.collect.writer import DatasetMismatch
+    from flatlab_lerobot.collect.store import DatasetMismatch
 
     with pytest.raises(DatasetMismatch, match="different recipe"):
         collect(other, tmp_path, progress=False)
@@ -544,7 +538,7 @@ def test_bench_collect_writes_its_numbers(tmp_path):
         assert isinstance(v, (int, float)) and v > 0
     prof = res["profile"]["seconds"]
     assert prof["episode (run_episode)"] > 0 and prof["  physics (FlatLabSim.step)"] > 0
-    assert prof["    render passes (CameraRig._render)"] > 0 and prof["video encoding (writer.encode_stream)"] > 0
+    assert prof["    render passes (CameraRig._render)"] > 0 and prof["video encoding (video.encode_stream)"] > 0
     assert prof["  lerobot save_episode"] > 0
 
 
@@ -571,14 +565,4 @@ def test_lerobot_train_act_two_steps(tiny, tmp_path):
     assert (out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file()
 
 
-@pytest.mark.slow
-def test_lerobot_dataset_viz_saves_rrd(tiny, tmp_path):
-    _, root, _ = tiny
-    cmd = [
-        str(BIN / "lerobot-dataset-viz"), "--repo-id", "local/flatlab_t", "--root", str(root),
-        "--episode-index", "0", "--save", "1", "--output-dir", str(tmp_path), "--num-workers", "0",
-    ]  # fmt: skip
-    r = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
-    rrd = list(tmp_path.glob("*.rrd"))
-    assert rrd and rrd[0].stat().st_size > 1000
+# lerobot-dataset-viz on a collected dataset: tests/test_view.py::test_lerobot_dataset_viz_saves_rrd.

@@ -39,7 +39,7 @@ def test_wrong_strategies_fail(object_id, strategy):
 
 def test_success_needs_the_object_aloft():
     rec = run_expert_episode("ref_box", "B", 0, max_time=3.0)  # stops before the lift finishes
-    assert not rec["success"] and "timeout" in rec["failure_reason"]
+    assert not rec["success"] and rec["failure_reason"] in ("not_aloft", "not_held")
 
 
 @pytest.mark.slow
@@ -68,7 +68,7 @@ def test_slide_never_pushes_a_small_object_past_its_balance_point():
     import numpy as np
 
     from flatlab_lerobot.sim.robot import tcp_rotation
-    from flatlab_lerobot.strategies import A_SLIDE_EXTRA, _a_overhang_target, a_slide
+    from flatlab_lerobot.strategies.a_push_to_edge import A_SLIDE_EXTRA, _a_overhang_target, a_slide
 
     for diameter in (0.10, 0.12, 0.30):
         w = World(np.array([0.0, 0.0, 0.752]), 0.0, np.array([diameter, diameter, 0.005]), False, 0.75, 0.3)
@@ -88,7 +88,7 @@ def test_c_lifts_a_sheet_higher_than_it_can_hang():
     import numpy as np
 
     from flatlab_lerobot.sim.robot import tcp_rotation
-    from flatlab_lerobot.strategies import c_lift
+    from flatlab_lerobot.strategies.c_fold_pinch import c_lift
 
     pose = (np.array([0.0, 0.0, 0.76]), tcp_rotation(np.array([0.0, 0.0, -1.0]), [0.0, 1.0, 0.0]))
     for size in ((0.25, 0.25), (0.35, 0.3), (0.1, 0.1)):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flatlab_lerobot.bench.protocol import main
+from flatlab_lerobot.evaluation.protocol import main
 
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "MUJOCO_GL": "egl"}
@@ -136,13 +136,17 @@ def test_same_episodes_and_numbers_as_lerobot_eval(tmp_path):
     assert [r["G"] for r in recs] == le_success, (recs, le_success)
     assert [r["steps"] for r in recs] == le_steps, ([r["steps"] for r in recs], le_steps)
     assert any(le_success), "the scripted expert should lift the reference box at least once"
+    # ... and the env's own success rule, replayed in-process through the one episode loop
+    from test_lerobot_eval import run_expert  # tests/ is on sys.path under pytest
+
+    assert [run_expert(seed + i, "ref_box", episode_length=300) for i in range(n)] == list(zip(le_success, le_steps))
     summary = json.loads((out / "results.json").read_text())
     assert 100 * summary["overall"]["G"] == pytest.approx(info["overall"]["pc_success"])
     # the placement is the benchmark's reset distribution for that seed (planar ±5 cm, yaw ±30°)
-    from flatlab_lerobot.demo import sample_placement
+    from flatlab_lerobot.tasks import ResetDistribution
 
     for r in recs:
-        x, y, yaw = sample_placement(r["seed"])
+        x, y, yaw = ResetDistribution().sample(r["seed"])
         p = r["placement"]
         np.testing.assert_allclose([p["x"], p["y"], p["yaw_deg"]], [x, y, np.degrees(yaw)], atol=1e-9)
 

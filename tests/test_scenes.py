@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import flatlab_lerobot  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
-from flatlab_lerobot.catalog import CatalogError, cell_config_for_scene, get_object, load_materials, load_scenes
+from flatlab_lerobot.catalog import CatalogError, get_object, load_materials, load_scenes
 from flatlab_lerobot.sim.cameras import GEOM, CameraRig
 from flatlab_lerobot.sim.core import FlatLabSim
 from flatlab_lerobot.sim.room import KEEP_OUT_BEHIND, KEEP_OUT_SIDE, PROPS
@@ -25,7 +25,7 @@ TABLE_GEOMS = ("table_top", "table_edge", "table_under")
 
 
 def _cell(sid: str) -> CellConfig:
-    return CellConfig(**cell_config_for_scene(sid))
+    return CellConfig.from_scene(sid)
 
 
 def _geom_ids(m, names):
@@ -190,7 +190,7 @@ def test_object_pushed_off_the_table_lands_on_the_floor(oid):
 
 def test_bad_scene_inputs_name_file_and_field(tiny_scene_catalog):
     scenes, mats, good = tiny_scene_catalog("edge: rounded, material: oak, props: [bookshelf, chair]")
-    cell = CellConfig(**cell_config_for_scene("s1", scenes, mats))
+    cell = CellConfig.from_scene("s1", scenes, mats)
     assert cell.props == ("bookshelf", "chair") and cell.edge == "rounded" and cell.table_friction == 0.4
     for old, new, fld in [("chair]", "piano]", "props[1]"), ("material: oak", "material: jade", "material")]:
         (scenes / "s.yaml").write_text(good.replace(old, new))
@@ -201,7 +201,7 @@ def test_bad_scene_inputs_name_file_and_field(tiny_scene_catalog):
     with pytest.raises(ValueError, match=r"field 'edge'"):
         build_model(CellConfig(edge="wavy"), None)
     with pytest.raises(KeyError, match="unknown scene id"):
-        cell_config_for_scene("no_such_scene")
+        CellConfig.from_scene("no_such_scene")
 
 
 def test_reset_distribution_scenes():

@@ -9,14 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from flatlab_lerobot.tasks import (
-    TASKS,
-    ResetDistribution,
-    Trajectory,
-    episode_metrics,
-    mean_squared_jerk,
-    run_task_episode,
-)
+from flatlab_lerobot.rollout import Episode, run_task_episode
+from flatlab_lerobot.tasks import TASKS, ResetDistribution, mean_squared_jerk
 
 RIGID = [t for t, s in TASKS.items() if s.material != "deformable"]
 CLOTH = [t for t, s in TASKS.items() if s.material == "deformable"]
@@ -29,11 +23,11 @@ EXPERT_SEED = 1
 
 def _check_success(task_id, seed=EXPERT_SEED):
     traj = run_task_episode(task_id, strategy="expert", seed=seed)
-    m = episode_metrics(traj)
+    m = traj.metrics()
     assert m["success"], (task_id, m)
     spec = TASKS[task_id]
     # it completes during one of the stages the registry names
-    assert traj.stage[m["steps_to_completion"] - 1] in spec.expert_stages, (task_id, traj.stage[-1])
+    assert traj.stages[m["steps_to_completion"] - 1] in spec.expert_stages, (task_id, traj.stages[-1])
     assert m["strategy"] == spec.expert_strategy and m["primitives_executed"] >= 1
     assert m["time_to_completion_s"] == pytest.approx(m["steps_to_completion"] * 0.1)
     assert np.isfinite(m["mean_squared_jerk"])
@@ -48,8 +42,9 @@ def test_expert_completes_task(task_id):
 
 @pytest.mark.parametrize("task_id", RIGID)
 def test_no_action_fails(task_id):
-    m = episode_metrics(run_task_episode(task_id, strategy=None, seed=0))
-    assert not m["success"] and m["failure"] == "timeout"
+    m = run_task_episode(task_id, strategy=None, seed=0).metrics()
+    expected = "not_aloft" if task_id == "grasp" else f"timeout: {task_id}"  # the env's FailureReason
+    assert not m["success"] and m["failure_reason"] == expected
     assert m["steps"] == TASKS[task_id].episode_length and m["primitives_executed"] == 0
     assert m["mean_squared_jerk"] == pytest.approx(0.0, abs=1e-6)  # the arms did not move
 
@@ -67,14 +62,14 @@ def test_no_action_fails(task_id):
     ],
 )
 def test_wrong_strategy_fails(task_id, object_id, strategy):
-    m = episode_metrics(run_task_episode(task_id, object_id, strategy, seed=0))
+    m = run_task_episode(task_id, object_id, strategy, seed=0).metrics()
     assert not m["success"], m
 
 
 def test_press_and_slide_predicates_need_their_stage():
     # stopping the expert before it reaches the object: no touch, no press, no slide
     for task_id in ("touch", "press", "slide", "slide_to_edge"):
-        assert not episode_metrics(run_task_episode(task_id, strategy="expert", seed=0, max_steps=15))["success"]
+        assert not run_task_episode(task_id, strategy="expert", seed=0, max_steps=15).metrics()["success"]
 
 
 @pytest.mark.slow
@@ -85,20 +80,23 @@ def test_cloth_task_expert_succeeds(task_id):
 
 @pytest.mark.parametrize("task_id", CLOTH)
 def test_cloth_task_no_action_fails(task_id):
-    m = episode_metrics(run_task_episode(task_id, strategy=None, seed=0, max_steps=10))
+    m = run_task_episode(task_id, strategy=None, seed=0, max_steps=10).metrics()
     assert not m["success"]
 
 
 def test_cloth_predicates_fail_on_rigid_objects():
     # a flat book never raises a fold, and the box's two-arm squeeze pinches nothing
-    assert not episode_metrics(run_task_episode("squeeze_edge", "ref_book", "A", seed=0, max_steps=60))["success"]
-    assert not episode_metrics(run_task_episode("grasp_edge", "ref_box", "B", seed=0))["success"]
+    assert not run_task_episode("squeeze_edge", "ref_book", "A", seed=0, max_steps=60).metrics()["success"]
+    assert not run_task_episode("grasp_edge", "ref_box", "B", seed=0).metrics()["success"]
 
 
 def test_reset_distribution_matches_the_benchmark_default():
-    from flatlab_lerobot.demo import sample_placement
+    from flatlab_lerobot.env import FlatLabEnv
 
-    assert ResetDistribution().sample(3) == sample_placement(3)
+    env = FlatLabEnv(object_id="ref_box", obs_pixels=False, obs_pointcloud=False)
+    env.reset(seed=3)
+    assert ResetDistribution().sample(3) == env.placement  # what the env samples
+    env.close()
     x, y, yaw = ResetDistribution(planar=0.0, yaw_deg=0.0).sample(3)
     assert x == y == yaw == 0.0
 
@@ -115,13 +113,12 @@ def test_jerk_metric():
 
 
 def test_metrics_from_a_recorded_trajectory():
-    traj = Trajectory("touch", "ref_book", "A", 0, 0.1)
-    for k in range(6):
+    traj = Episode("ref_book", 0, "A", "touch", dt=0.1, success=True, steps=4)
+    for k in range(4):  # the episode ends on the step its predicate first holds
         traj.tcp.append(np.zeros((2, 3)))
-        traj.stage.append("touch")
-        traj.primitive.append(k // 2)
-        traj.success.append(k >= 3)
-    m = episode_metrics(traj)
+        traj.stages.append("touch")
+        traj.primitives.append(k // 2)
+    m = traj.metrics()
     assert m["success"] and m["steps_to_completion"] == 4 and m["time_to_completion_s"] == pytest.approx(0.4)
     assert m["primitives_executed"] == 2 and m["strategy"] == "A"
 

@@ -29,9 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flatlab_lerobot.catalog import ObjectSpec
-from flatlab_lerobot.sim.robot import BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE
-
-OBJECT_BODY = "object"
+from flatlab_lerobot.constants import BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, OBJECT_BODY
 CLOTH_FLEX = "cloth"
 _EPS = 0.0004  # height step between stacked decoration layers (m)
 _DECO = 0.001  # thickness of a decoration layer (m)

@@ -88,7 +88,7 @@ def raw_cost(recipe, root: Path, workers: int) -> dict:
     import numpy as np
     import pyarrow.parquet as pq
 
-    from flatlab_lerobot.collect.writer import EPISODES_JSONL
+    from flatlab_lerobot.collect.store import EPISODES_JSONL
 
     cols = {"episode_index": [], "frame_index": [], "action": []}
     for f in sorted((root / "data").rglob("*.parquet")):
@@ -154,12 +154,12 @@ PROFILE_PIECES = (
     ("    clouds (CameraRig.depth_to_points)", "flatlab_lerobot.sim.cameras", "CameraRig.depth_to_points"),
     ("IK (DualArmIK.solve)", "flatlab_lerobot.sim.robot", "DualArmIK.solve"),
     ("frame building (runner._frame)", "flatlab_lerobot.collect.runner", "_frame"),
-    ("video encoding (writer.encode_stream)", "flatlab_lerobot.collect.writer", "encode_stream"),
-    ("video stats (writer.image_stats)", "flatlab_lerobot.collect.writer", "image_stats"),
-    ("dataset open (DatasetStore.begin)", "flatlab_lerobot.collect.writer", "DatasetStore.begin"),
-    ("add_frame + save_episode (DatasetStore.add)", "flatlab_lerobot.collect.writer", "DatasetStore.add"),
+    ("video encoding (video.encode_stream)", "flatlab_lerobot.collect.video", "encode_stream"),
+    ("video stats (video.image_stats)", "flatlab_lerobot.collect.video", "image_stats"),
+    ("dataset open (DatasetStore.begin)", "flatlab_lerobot.collect.store", "DatasetStore.begin"),
+    ("add_frame + save_episode (DatasetStore.add)", "flatlab_lerobot.collect.store", "DatasetStore.add"),
     ("  lerobot save_episode", "lerobot.datasets.lerobot_dataset", "LeRobotDataset.save_episode"),
-    ("commit (finalize, meta, fsync, swap)", "flatlab_lerobot.collect.writer", "DatasetStore.commit"),
+    ("commit (finalize, meta, fsync, swap)", "flatlab_lerobot.collect.store", "DatasetStore.commit"),
 )
 
 
@@ -170,7 +170,9 @@ def profile_episode(recipe, episode_index: int = 0) -> dict:
 
     from flatlab_lerobot.collect.collector import _quiet_ffmpeg
     from flatlab_lerobot.collect.runner import run_episode
-    from flatlab_lerobot.collect.writer import DatasetStore, camera_meta, encode_videos
+    from flatlab_lerobot.collect.features import camera_meta
+    from flatlab_lerobot.collect.store import DatasetStore
+    from flatlab_lerobot.collect.video import encode_videos
 
     _quiet_ffmpeg()
     acc = {label: [0.0, 0.0] for label, _, _ in PROFILE_PIECES}  # wall, CPU
@@ -194,7 +196,7 @@ def profile_episode(recipe, episode_index: int = 0) -> dict:
         store.recover()
         store.begin()  # the first open imports lerobot/torch, once per run: not timed
         store.abort()
-        store._camera_meta = camera_meta(recipe)  # computed once per run, too
+        store.camera_meta = camera_meta(recipe)  # computed once per run, too
         run_episode(recipe, episode_index)  # warm imports and caches
         for label, mod, attr in PROFILE_PIECES:
             owner = importlib.import_module(mod)

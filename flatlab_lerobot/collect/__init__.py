@@ -2,8 +2,11 @@
 
 * :mod:`.recipe`: the typed YAML recipe (:func:`load_recipe`, :class:`RecipeError`),
 * :mod:`.runner`: one expert episode -> labelled LeRobot frames,
-* :mod:`.writer`: LeRobotDataset v3 features, video encoding (in the workers), crash-safe commits,
-  camera meta, dataset card,
+* :mod:`.features`: the LeRobotDataset features and camera metadata (depth -> clouds),
+* :mod:`.video`: camera streams -> MP4s, encoded in the workers,
+* :mod:`.store`: the dataset store with crash-safe, resumable commits,
+* :mod:`.card`: the dataset card (``datasets/card_template.md``),
+* :mod:`.hub`: ``flatlab push``,
 * :mod:`.collector`: the worker pool, the in-order resumable loop and the CLI entry point :func:`main`.
 """
 

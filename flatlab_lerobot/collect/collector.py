@@ -24,7 +24,8 @@ from pathlib import Path
 
 from flatlab_lerobot.collect.recipe import Recipe, RecipeError, load_recipe
 from flatlab_lerobot.collect.runner import EnvCache, EpisodeResult, run_episode
-from flatlab_lerobot.collect.writer import DatasetMismatch, DatasetStore, encode_videos, stream_specs
+from flatlab_lerobot.collect.store import DatasetMismatch, DatasetStore
+from flatlab_lerobot.collect.video import encode_videos, stream_specs
 
 
 def peak_rss_mb() -> float:
@@ -45,7 +46,7 @@ _ENVS = EnvCache()  # this process's envs, reused across its episodes
 
 def episode_task(recipe: Recipe, episode_index: int, workdir: str, specs: dict) -> tuple[EpisodeResult, dict]:
     """One episode as a worker runs it: simulate, then encode the camera streams into ``workdir``
-    (``specs``: :func:`~flatlab_lerobot.collect.writer.stream_specs`).  Returns the result (frames
+    (``specs``: :func:`~flatlab_lerobot.collect.video.stream_specs`).  Returns the result (frames
     without the video arrays) and the worker's pid and peak RSS."""
     cpu0 = time.process_time()
     res = run_episode(recipe, episode_index, cache=_ENVS)

@@ -36,7 +36,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from flatlab_lerobot.collect.writer import EPISODES_JSONL, META_JSON, READY
+from flatlab_lerobot.collect.store import EPISODES_JSONL, META_JSON, READY
 
 INFO_JSON = "meta/info.json"
 _INFO_FIELDS = ("codebase_version", "fps", "features", "total_episodes", "total_frames")
@@ -162,7 +162,7 @@ def make_card(ds: LocalDataset, repo_id: str, tags=(), license: str = "apache-2.
     """The dataset card for ``repo_id``; its YAML header is checked the way the hub parses it."""
     from huggingface_hub import DatasetCard
 
-    from flatlab_lerobot.collect.writer import render_card
+    from flatlab_lerobot.collect.card import render_card
 
     card = render_card(ds.recipe, ds.meta, ds.records, repo_id=repo_id, tags=list(tags), license=license, info=ds.info)
     try:
@@ -188,6 +188,9 @@ def _write_atomic(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes it 0600: a card is for reading, as any file written
         with os.fdopen(fd, "w") as f:
             f.write(text)
         os.replace(tmp, path)

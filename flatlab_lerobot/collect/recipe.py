@@ -31,7 +31,9 @@ from typing import Any
 
 import yaml
 
+from flatlab_lerobot.paths import DATASETS_DIR
 from flatlab_lerobot.sim.domain import Domain, sample_domain
+from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
 MODALITIES = ("rgb", "depth", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
 DEFAULT_MODALITIES = ("rgb", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
@@ -47,8 +49,8 @@ class RecipeError(ValueError):
 
 @dataclass(frozen=True)
 class Randomization:
-    xy_range: float = 0.05  # object planar offset, uniform in ±xy_range (m)
-    yaw_range_deg: float = 30.0  # object yaw, uniform in ±yaw_range_deg
+    xy_range: float = DEFAULT_PLANAR  # object planar offset, uniform in ±xy_range (m)
+    yaw_range_deg: float = DEFAULT_YAW_DEG  # object yaw, uniform in ±yaw_range_deg
     # The episode's domain (flatlab_lerobot.sim.domain; recorded per episode in meta/flatlab_episodes.jsonl):
     joint_noise: float = 0.0  # robot start posture: every arm joint uniform in ±joint_noise rad off home
     camera_pos_jitter: float = 0.0  # every camera moved uniform in ±this per world axis (m) ...
@@ -287,8 +289,8 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
     rand_keys = {f.name for f in dataclasses.fields(Randomization)}
     r = v.mapping("randomization", raw.get("randomization"), rand_keys)
     kw["randomization"] = Randomization(
-        xy_range=v.number("randomization.xy_range", r.get("xy_range", 0.05), 0.0, 0.3),
-        yaw_range_deg=v.number("randomization.yaw_range_deg", r.get("yaw_range_deg", 30.0), 0.0, 180.0),
+        xy_range=v.number("randomization.xy_range", r.get("xy_range", DEFAULT_PLANAR), 0.0, 0.3),
+        yaw_range_deg=v.number("randomization.yaw_range_deg", r.get("yaw_range_deg", DEFAULT_YAW_DEG), 0.0, 180.0),
         joint_noise=v.number("randomization.joint_noise", r.get("joint_noise", 0.0), 0.0, 0.5),
         camera_pos_jitter=v.number("randomization.camera_pos_jitter", r.get("camera_pos_jitter", 0.0), 0.0, 0.1),
         camera_rot_jitter_deg=v.number(
@@ -339,10 +341,16 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
 
 
 def load_recipe(path: str | Path) -> Recipe:
+    """The recipe in file ``path``; a path that is not a file may name a shipped recipe
+    (``datasets/<name>.yaml`` of the project or the installed wheel: ``tiny_rigid``, ``datasets/tiny_rigid.yaml``)."""
     path = Path(path)
     source = str(path)
     if not path.is_file():
-        raise RecipeError(f"{source}: recipe file not found")
+        shipped = DATASETS_DIR / (path.name if path.suffix else f"{path.name}.yaml")
+        if not shipped.is_file():
+            names = sorted(p.stem for p in DATASETS_DIR.glob("*.yaml"))
+            raise RecipeError(f"{source}: recipe file not found (shipped recipes: {', '.join(names)})")
+        path, source = shipped, str(shipped)
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

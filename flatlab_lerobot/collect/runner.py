@@ -21,7 +21,7 @@ import numpy as np
 
 from flatlab_lerobot.catalog import get_object
 from flatlab_lerobot.collect.recipe import Recipe
-from flatlab_lerobot.sim.core import SimulationDiverged
+from flatlab_lerobot.sim.core import FailureReason
 
 STAGE_HOLD = "hold"
 
@@ -40,7 +40,7 @@ class EpisodeResult:
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     stages: list[str] = field(default_factory=list)
-    # feature -> (MP4 path, stats) once a worker has encoded the camera streams (writer.encode_videos);
+    # feature -> (MP4 path, stats) once a worker has encoded the camera streams (video.encode_videos);
     # the frames then no longer hold those arrays.
     videos: dict | None = None
     timing: dict = field(default_factory=dict)  # seconds: build, reset, loop (expert + step + frames), encode
@@ -177,7 +177,7 @@ def run_episode(recipe: Recipe, episode_index: int, env=None, cache: EnvCache | 
     records as skipped.)  ``env``: an env to reuse (tests); ``cache``: an :class:`EnvCache` to take
     it from (collection workers); by default a fresh one."""
     from flatlab_lerobot.env import TASK_DESCRIPTIONS
-    from flatlab_lerobot.strategies import Expert
+    from flatlab_lerobot.rollout import ExpertPolicy, rollout
 
     seed = recipe.episode_seed(episode_index)
     object_id = recipe.object_for(episode_index)
@@ -187,60 +187,44 @@ def run_episode(recipe: Recipe, episode_index: int, env=None, cache: EnvCache | 
     res = EpisodeResult(episode_index, seed, object_id, strategy, task, placement, False, "")
     t0 = time.perf_counter()
     own_env = env is None and cache is None
-    frames: list[dict] = []
-    reason = ""
-    info: dict = {}
     t_reset = t_loop = t0
     try:
         if own_env:
             env = make_env(recipe, object_id)
         elif env is None:
             env = cache.get(recipe, object_id)
-        t_reset = time.perf_counter()
-        domain = recipe.randomization.domain(seed, sorted(env.rig.camera_names) if env.rig is not None else ())
-        res.domain = domain.to_json()
-        obs, info = env.reset(seed=seed, options={"placement": placement, "domain": domain})
+    except Exception as exc:  # noqa: BLE001 -- a bad env build: an episode with no frames, labelled
+        res.failure_reason = FailureReason.ERROR.text(f"{type(exc).__name__}: {exc}")
+        res.wall_time_s = time.perf_counter() - t0
+        return res
+    t_reset = time.perf_counter()
+    domain = recipe.randomization.domain(seed, sorted(env.rig.camera_names) if env.rig is not None else ())
+    res.domain = domain.to_json()
+
+    def on_reset(env, obs, info):
+        nonlocal t_loop
         if env.rig is not None and domain.camera_offsets:  # where the jittered cameras were
             res.domain["cam_to_world"] = {c: _cam_to_world(env, c) for c in sorted(domain.camera_offsets)}
         t_loop = time.perf_counter()
-        expert = Expert(env.cell, recipe.control_dt)
-        holder = {"obs": obs}
-        gen = expert.episode(strategy, lambda: (holder["obs"]["agent_pos"], holder["obs"]["environment_state"]))
-        for _ in range(recipe.max_steps):
-            stage, prim_index, action = next(gen)
-            frames.append(_frame(recipe, env, holder["obs"], action, stage, prim_index))
-            if not res.stages or res.stages[-1] != stage:
-                res.stages.append(stage)
-            obs, _, terminated, truncated, info = env.step(action)
-            holder["obs"] = obs
-            if info.get("failure_reason"):
-                reason = str(info["failure_reason"])
-                break
-            if terminated or truncated:
-                break
-    except SimulationDiverged as exc:
-        reason = f"simulation diverged: {exc}"
-    except Exception as exc:  # noqa: BLE001 -- expert/IK/rendering errors: keep the demo, label it
-        reason = f"error: {type(exc).__name__}: {exc}"
+
+    ep = rollout(
+        env, ExpertPolicy(strategy, env.cell, recipe.control_dt), seed=seed,
+        options={"placement": placement, "domain": domain}, max_steps=recipe.max_steps, on_reset=on_reset,
+        before_step=lambda st: _frame(recipe, st.env, st.obs, st.action, st.stage, st.primitive), catch_errors=True,
+    )  # fmt: skip
     t_end = time.perf_counter()
     res.timing = {"build": t_reset - t0, "reset": max(0.0, t_loop - t_reset), "loop": max(0.0, t_end - t_loop)}
-    success = bool(info.get("is_success", False)) and not reason
-    if not success and not reason:
-        try:
-            why = env.sim.grasp_status().shortfall
-        except Exception:  # noqa: BLE001
-            why = "not lifted"
-        reason = f"timeout after {len(frames)} steps: {why}"
-    res.success, res.failure_reason = success, reason
-    if env is not None and env.sim is not None:
-        res.sim_time_s = float(env.sim.data.time)
-    if own_env and env is not None:
+    frames = ep.frames
+    res.stages = ep.stage_sequence
+    res.success, res.failure_reason = ep.success, ep.failure_reason
+    res.sim_time_s = ep.sim_time_s
+    if own_env:
         env.close()
     for f in frames:
         f["strategy"] = strategy
         f["object_id"] = object_id
-        f["success"] = np.array([success], bool)
-        f["failure_reason"] = reason
+        f["success"] = np.array([ep.success], bool)
+        f["failure_reason"] = ep.failure_reason
         f["episode_seed"] = np.array([seed], np.int64)
         f["task"] = task
     res.frames = frames

@@ -23,7 +23,7 @@ A sample (one row of ``samples.parquet``, one entry of each ``.npy`` at ``sample
   ``contact`` (fingers touch the object).  An arm the primitive does not command keeps its
   commanded pose and width (start = end).  ``arms``: the commanded arms; ``moving_arms``: those
   whose commanded pose or width changes (transit to the start pose included).
-* ``environment_state`` (14, privileged; names in ``strategies.ENV_STATE_NAMES``) at the capture.
+* ``environment_state`` (14, privileged; names in ``sim.core.ENV_STATE_NAMES``) at the capture.
 * ``demo_success`` / ``demo_failure_reason``: the demo's outcome.  Failed demos are kept;
   filter on ``demo_success`` to train on successful demonstrations only.
 
@@ -72,6 +72,7 @@ import numpy as np
 
 from flatlab_lerobot.learning import int_at_least
 from flatlab_lerobot.paths import OUTPUTS_DIR
+from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
 ARM_NAMES = ("left", "right")  # = sim.robot.ARMS (not imported here: keeps `--help` light)
 CAPTURE_MODES = ("decision", "start")
@@ -112,8 +113,8 @@ class PrimitiveSetConfig:
     capture: str = "decision"
     strategy: str = "auto"
     max_steps: int = 600
-    xy_range: float = 0.05
-    yaw_range_deg: float = 30.0
+    xy_range: float = DEFAULT_PLANAR
+    yaw_range_deg: float = DEFAULT_YAW_DEG
     control_dt: float = 0.1
 
     def __post_init__(self):
@@ -199,7 +200,7 @@ def _pose_changed(a, b) -> bool:
 
 
 class _PrimitiveTap:
-    """Sees every primitive the expert executes, without touching ``strategies.py``: the
+    """Sees every primitive the expert executes, without touching the strategies package: the
     expert's runner is wrapped (this instance only).  The runner's action stream is pure
     kinematics of the commanded joints, so it is expanded eagerly; this tells how many of its
     steps are the joint-space transit (a ``move`` primitive cannot be told from its transit by
@@ -305,76 +306,62 @@ def run_demo(cfg: PrimitiveSetConfig, object_id: str, demo_index: int, on_step=N
     Never raises for a failed demo: divergence, expert errors and timeouts end it with
     ``success=False`` and a reason; the samples taken so far are kept."""
     from flatlab_lerobot.catalog import get_object
-    from flatlab_lerobot.sim.core import SimulationDiverged
-    from flatlab_lerobot.strategies import STRATEGIES, Expert
-    from flatlab_lerobot.tasks import ResetDistribution
+    from flatlab_lerobot.rollout import ExpertPolicy, rollout
+    from flatlab_lerobot.sim.core import FailureReason
+    from flatlab_lerobot.strategies import STRATEGIES
 
     t0, c0 = time.perf_counter(), time.process_time()
     spec = get_object(object_id)
     strategy = spec.strategy if cfg.strategy == "auto" else cfg.strategy
     seed = demo_seed(cfg.seed, object_id, demo_index)
-    placement = ResetDistribution(cfg.xy_range, cfg.yaw_range_deg).sample(seed)
     rng = np.random.default_rng(seed)
     samples: list[dict] = []
     scene, objc = [], []
-    reason, info, steps, env, workspace = "", {}, 0, None, None
     n_stages = len(STRATEGIES[strategy])
     try:
         env = make_env(cfg, object_id)
-        obs, info = env.reset(seed=seed, options={"placement": placement})
-        workspace = {"lo": env.workspace[0].tolist(), "hi": env.workspace[1].tolist()}
-        expert = Expert(env.cell, cfg.control_dt)
-        tap = _PrimitiveTap(expert)
-        holder = {"obs": obs}
-        gen = expert.episode(strategy, lambda: (holder["obs"]["agent_pos"], holder["obs"]["environment_state"]))
-        prev, k, done_at = -1, 0, None
-        grace = round(DONE_GRACE_S / cfg.control_dt)
-        for _ in range(cfg.max_steps):
-            stage, index, action = next(gen)
-            if index != prev:
-                prev, k = index, 0
-            else:
-                k += 1
-            entry = tap.started[index] if index < len(tap.started) else None
-            if (
-                entry is not None
-                and k == (0 if cfg.capture == "decision" else entry["n_transit"])
-                and k < entry["n_steps"]
-            ):
-                sc, oc, n_seen, n_obj_seen = _clouds(env, cfg, rng)
-                scene.append(sc)
-                objc.append(oc)
-                samples.append(
-                    _sample(env, spec, strategy, demo_index, seed, placement, index, entry, steps, n_seen, n_obj_seen)
-                )
-            if on_step is not None:
-                on_step(env, stage, index, action)
-            obs, _, terminated, truncated, info = env.step(action)
-            steps += 1
-            holder["obs"] = obs
-            if info.get("failure_reason"):
-                reason = str(info["failure_reason"])
-                break
-            if terminated or truncated:
-                break
-            if tap.finished >= n_stages:  # the expert is done; it only holds from now on
-                done_at = steps if done_at is None else done_at
-                if steps - done_at >= grace:
-                    break
-    except SimulationDiverged as exc:
-        reason = f"simulation diverged: {exc}"
-    except Exception as exc:  # noqa: BLE001 -- expert/IK/render errors: keep the demo, label it
-        reason = f"error: {type(exc).__name__}: {exc}"
-    success = bool(info.get("is_success", False)) and not reason
-    if not success and not reason:
-        try:
-            why = env.sim.grasp_status().shortfall
-        except Exception:  # noqa: BLE001
-            why = "not lifted"
-        reason = f"not lifted after {steps} steps: {why}"
-    sim_time = float(env.sim.data.time) if env is not None and env.sim is not None else 0.0
-    if env is not None:
-        env.close()
+    except Exception as exc:  # noqa: BLE001 -- keep the demo, label it
+        reason = FailureReason.ERROR.text(f"{type(exc).__name__}: {exc}")
+        n, m = cfg.n_points, cfg.n_object_points
+        return DemoResult(object_id, demo_index, seed, strategy, False, reason, [], np.zeros((0, n, 3), np.float32),
+                          np.zeros((0, m, 3), np.float32), 0, 0.0, time.perf_counter() - t0, (0.0, 0.0, 0.0), None,
+                          time.process_time() - c0)  # fmt: skip
+    policy = ExpertPolicy(strategy, env.cell, cfg.control_dt)
+    tap = _PrimitiveTap(policy.expert)
+    grace = round(DONE_GRACE_S / cfg.control_dt)
+    state = {"prev": -1, "k": 0, "done_at": None}
+
+    def capture(st) -> None:  # before the step: the scene as the primitive's start sees it
+        index = st.primitive
+        if index != state["prev"]:
+            state["prev"], state["k"] = index, 0
+        else:
+            state["k"] += 1
+        k = state["k"]
+        entry = tap.started[index] if index < len(tap.started) else None
+        if entry is not None and k == (0 if cfg.capture == "decision" else entry["n_transit"]) and k < entry["n_steps"]:
+            sc, oc, n_seen, n_obj_seen = _clouds(st.env, cfg, rng)
+            scene.append(sc)
+            objc.append(oc)
+            samples.append(_sample(st.env, spec, strategy, demo_index, seed, st.env.placement, index, entry, st.index,
+                                   n_seen, n_obj_seen))  # fmt: skip
+        if on_step is not None:
+            on_step(st.env, st.stage, index, st.action)
+
+    def expert_done(st) -> bool:  # the expert is done; it only holds from now on
+        if tap.finished < n_stages:
+            return False
+        steps = st.index + 1
+        state["done_at"] = steps if state["done_at"] is None else state["done_at"]
+        return steps - state["done_at"] >= grace
+
+    ep = rollout(env, policy, seed=seed, max_steps=cfg.max_steps, before_step=capture, stop=expert_done,
+                 catch_errors=True)  # fmt: skip
+    success, reason, steps = ep.success, ep.failure_reason, ep.steps
+    placement = ep.placement
+    workspace = {"lo": env.workspace[0].tolist(), "hi": env.workspace[1].tolist()}
+    sim_time = ep.sim_time_s
+    env.close()
     for s in samples:
         s["demo_success"] = success
         s["demo_failure_reason"] = reason
@@ -459,7 +446,7 @@ COLUMN_DOCS = {
     "{arm}_tcp_pos / _tcp_quat": "TCP pose measured in the sim at the capture",
     "{arm}_gripper_measured": "finger opening measured at the capture (m)",
     "{arm}_contact": "the arm's fingers touch the object at the capture",
-    "environment_state": "privileged state (14), names in strategies.ENV_STATE_NAMES",
+    "environment_state": "privileged state (14), names in sim.core.ENV_STATE_NAMES",
     "scene_points_seen / object_points_seen": "points before sampling (0 object points: object cloud is zeros)",
     "demo_success": "the demo met the grasp success rule", "demo_failure_reason": "why not ('' on success)",
     "demo_steps": "control steps the demo ran",
@@ -784,8 +771,8 @@ def main(argv=None) -> int:
                     help="decision: when the expert poses the primitive (default); start: at its start pose")  # fmt: skip
     ap.add_argument("--strategy", choices=("auto", "A", "B", "C"), default="auto", help="auto: the catalog label")
     ap.add_argument("--max-steps", type=int_at_least(1), default=600, help="control steps per demo at most")
-    ap.add_argument("--xy-range", type=float, default=0.05, help="placement offset ±m (default 0.05)")
-    ap.add_argument("--yaw-range", type=float, default=30.0, help="placement yaw ±deg (default 30)")
+    ap.add_argument("--xy-range", type=float, default=DEFAULT_PLANAR, help=f"placement offset ±m (default {DEFAULT_PLANAR})")
+    ap.add_argument("--yaw-range", type=float, default=DEFAULT_YAW_DEG, help=f"placement yaw ±deg (default {DEFAULT_YAW_DEG:g})")
     ap.add_argument("--workers", type=int_at_least(1), default=1, help="processes (one object shard each at a time)")
     ap.add_argument("--out", type=Path, default=OUTPUTS_DIR / "learning" / "primitive_set")
     ap.add_argument("--overwrite", action="store_true", help="discard existing shards and outputs in --out")

@@ -238,7 +238,7 @@ def _meta(cfg: SetConfig, bases, index, seconds: float, workers: int) -> dict:
 
     import mujoco
 
-    from flatlab_lerobot.catalog import STRATEGIES
+    from flatlab_lerobot.catalog import STRATEGY_LABELS
     from flatlab_lerobot.sim.scene import CellConfig
     from flatlab_lerobot.tasks import ResetDistribution
     from flatlab_lerobot.transforms import LABEL_RULE, label_disagreements, scale_range, seven_scales
@@ -257,7 +257,7 @@ def _meta(cfg: SetConfig, bases, index, seconds: float, workers: int) -> dict:
         "n_clouds": len(index["label"]),
         "n_points": cfg.n_points,
         "n_base_objects": len(bases),
-        "label_names": list(STRATEGIES),
+        "label_names": list(STRATEGY_LABELS),
         "counts": {c: counts(c) for c in ("strategy", "split", "category", "transform", "material", "label_source")},
         "seed": cfg.seed,
         "settings": settings,

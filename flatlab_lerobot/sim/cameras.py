@@ -51,8 +51,8 @@ class CameraRig:
         self._cache: dict[str, Frame] = {}
         self._cache_key = None
         extent = model.stat.extent
-        self._znear = np.float32(model.vis.map.znear * extent)
-        self._zfar = np.float32(model.vis.map.zfar * extent)
+        self.znear = np.float32(model.vis.map.znear * extent)
+        self.zfar = np.float32(model.vis.map.zfar * extent)
 
     # ------------------------------------------------------------------ renderers
     def renderer(self, width: int | None = None, height: int | None = None) -> mujoco.Renderer:
@@ -129,7 +129,7 @@ class CameraRig:
         finally:
             np.copyto(scn.flags, flags)
         # Same linearisation as mujoco.Renderer (perspective cameras, mjDEPTH_ZEROFAR).
-        zfar, znear = self._zfar, self._znear
+        zfar, znear = self.zfar, self.znear
         c = np.float32(-0.5) * (-(zfar + znear) / (zfar - znear)) - np.float32(0.5)
         d = np.float32(-0.5) * (-(np.float32(2) * zfar * znear) / (zfar - znear))
         depth = np.ascontiguousarray(np.flipud((d / (zbuf.astype(np.float64) + c)).astype(np.float32)))
@@ -183,7 +183,7 @@ class CameraRig:
         H, W = depth.shape
         fovy = np.deg2rad(self.model.cam_fovy[self.model.camera(cam).id])
         f = (H / 2) / np.tan(fovy / 2)
-        valid = depth < 0.99 * self._zfar
+        valid = depth < 0.99 * self.zfar
         if mask is not None:
             valid &= mask
         v, u = np.nonzero(valid)

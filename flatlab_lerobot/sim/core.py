@@ -1,6 +1,6 @@
 """The simulation core: one cell (two arms + one object), stepping, control, contacts, success.
 
-A cell may also hold rigid *clutter* objects (a cluttered desk, :mod:`flatlab_lerobot.desk`).
+A cell may also hold rigid *clutter* objects (a cluttered desk, :mod:`flatlab_lerobot.tasks.clear_desk`).
 Then one of the objects is the *target* (:meth:`FlatLabSim.set_target`): the privileged state,
 the object-only point cloud and the success rule's status refer to it, while the 2-s hold rule
 is tracked for every object (``FlatLabSim.lifted`` latches per object when it was met).
@@ -15,16 +15,29 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.assets import OBJECT_BODY
 from flatlab_lerobot.catalog import ObjectSpec
-from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, HOME_Q, ArmIndex, DualArmIK
+from flatlab_lerobot.constants import OBJECT_BODY
+from flatlab_lerobot.sim.robot import ARM_JOINTS, ARMS, GRIPPER_MAX_WIDTH, HOME_Q, ArmIndex, DualArmIK
 from flatlab_lerobot.sim.scene import CellConfig, build_model, clutter_name
 
 ACTION_DIM = 16  # per arm: 7 joint targets (rad) + gripper width (m)
+
+# The observation layout, defined here, where it is produced -------------------------------------
+STATE_NAMES: tuple[str, ...] = tuple(f"{arm}_{j}" for arm in ARMS for j in (*ARM_JOINTS, "gripper_width"))
+"""Names of the (16,) joint vector: ``joint_positions()`` (env ``agent_pos``, ``observation.state``) and the joint action."""
+ENV_STATE_NAMES: tuple[str, ...] = (
+    "obj_x", "obj_y", "obj_z", "obj_qw", "obj_qx", "obj_qy", "obj_qz",
+    "obj_size_x", "obj_size_y", "obj_size_z", "deformable", "table_height", "table_edge_x", "obj_mass",
+)  # fmt: skip
+"""Names of the (14,) privileged state, :meth:`FlatLabSim.environment_state` (``observation.environment_state``)."""
+ENV_STATE_DIM = len(ENV_STATE_NAMES)
+ENV_STATE_INDEX: dict[str, int] = {n: i for i, n in enumerate(ENV_STATE_NAMES)}
+"""Index of each name in the privileged state (read it by name, never by a bare number)."""
 LIFT_HEIGHT = 0.05  # success: lowest object point at least this far above the table (m)
 HOLD_TIME = 2.0  # success: ... for this long (s)
 MAX_SLIP = 0.01  # success: ... moving less than this relative to the holding gripper(s) (m)
@@ -34,6 +47,22 @@ OFF_TABLE_DROP = 0.10  # an object is off the table once its centre is this far 
 
 class SimulationDiverged(RuntimeError):
     """NaN/Inf state or a MuJoCo warning: the episode's physics cannot be trusted."""
+
+
+class FailureReason(StrEnum):
+    """Why an episode failed: the one vocabulary of every ``failure_reason`` (env ``info``, episode
+    records, eval results, datasets).  A failure reason is written ``"<reason>"`` or
+    ``"<reason>: <detail>"`` (:meth:`text`); ``""`` means success."""
+
+    DIVERGED = "diverged"  # the physics diverged (NaN/Inf state or a MuJoCo warning); detail: which
+    FELL_OFF_TABLE = "fell_off_table"  # out of steps; the object is off the table (floor, bin, falling)
+    NOT_ALOFT = "not_aloft"  # out of steps; the object is not >= LIFT_HEIGHT above the table, off it
+    NOT_HELD = "not_held"  # out of steps; aloft, but held < HOLD_TIME or it slipped >= MAX_SLIP
+    TIMEOUT = "timeout"  # out of steps; a task predicate other than the grasp rule was not met; detail: the task
+    ERROR = "error"  # the expert or policy raised (collection keeps the demo); detail: the exception
+
+    def text(self, detail: str = "") -> str:
+        return f"{self.value}: {detail}" if detail else self.value
 
 
 @dataclass
@@ -49,11 +78,11 @@ class GraspStatus:
     fallen: bool = False  # the object is off the table (FlatLabSim.off_table)
 
     @property
-    def shortfall(self) -> str:
-        """Which part of the success rule an unsuccessful episode missed, for failure reasons."""
+    def shortfall(self) -> FailureReason:
+        """Which part of the success rule an unsuccessful episode missed."""
         if self.fallen:
-            return "object fell off the table"
-        return "object not aloft" if self.clearance < LIFT_HEIGHT else "held < 2 s or slipped"
+            return FailureReason.FELL_OFF_TABLE
+        return FailureReason.NOT_ALOFT if self.clearance < LIFT_HEIGHT else FailureReason.NOT_HELD
 
 
 @dataclass
@@ -120,6 +149,9 @@ class FlatLabSim:
         self.ik = DualArmIK(self.ik_model, self.ik_arms)
         self._ik_q = np.zeros(self.ik_model.nq)
         self._target = np.zeros(ACTION_DIM)
+        # written by sim.domain.apply_domain: the model's nominal values and the mass scale applied now
+        self.domain_nominal = None
+        self.domain_mass_scale = 1.0
 
     def _index_object(self, obj: ObjectSpec, body_name: str, joint_name: str) -> SimObject:
         m = self.model
@@ -175,7 +207,7 @@ class FlatLabSim:
             d.qpos[idx.qpos] = homes[-1]
             d.qpos[idx.finger_qpos] = GRIPPER_MAX_WIDTH / 2
         self._target = np.concatenate([np.r_[q, GRIPPER_MAX_WIDTH] for q in homes])
-        d.ctrl[self._ctrl_ids()] = self._target
+        d.ctrl[self.ctrl_ids()] = self._target
         self.set_target(0)
         for o, (px, py, pyaw) in zip(self.objects, [(x, y, yaw), *self.clutter_poses]):
             c, s = np.cos(pyaw / 2), np.sin(pyaw / 2)
@@ -200,7 +232,8 @@ class FlatLabSim:
         self._clear_holds()
         self.lifted[:] = False
 
-    def _ctrl_ids(self) -> np.ndarray:
+    def ctrl_ids(self) -> np.ndarray:
+        """Actuator ids of the 16 controls, in action order (left arm + gripper, right arm + gripper)."""
         return np.concatenate([self.arms[a].ctrl for a in ARMS])
 
     # ------------------------------------------------------------------ control
@@ -212,7 +245,7 @@ class FlatLabSim:
         if not np.all(np.isfinite(target)):
             raise ValueError("action contains NaN/Inf")
         m, d = self.model, self.data
-        ids = self._ctrl_ids()
+        ids = self.ctrl_ids()
         lo, hi = m.actuator_ctrlrange[ids, 0], m.actuator_ctrlrange[ids, 1]
         target = np.clip(target, lo, hi)
         start = self._target
@@ -303,7 +336,8 @@ class FlatLabSim:
             return np.zeros((0, 2), int), np.zeros((0, 2), int)
         return d.contact.geom[:n], d.contact.flex[:n]
 
-    def _is_object(self, geom: np.ndarray, flex: np.ndarray, index: int | None = None) -> np.ndarray:
+    def is_object(self, geom: np.ndarray, flex: np.ndarray, index: int | None = None) -> np.ndarray:
+        """Per (geom id, flex id) pair of a contact side: is it the target (or ``objects[index]``)?"""
         o = self._obj(index)
         if o.flex_id >= 0:
             return flex == o.flex_id
@@ -314,7 +348,7 @@ class FlatLabSim:
         g, f = self._contact_pairs()
         if len(g) == 0:
             return False
-        obj = self._is_object(g, f, index)
+        obj = self.is_object(g, f, index)
         other = np.isin(g, geoms)
         return bool(np.any(obj[:, 0] & other[:, 1]) or np.any(obj[:, 1] & other[:, 0]))
 
@@ -399,9 +433,9 @@ class FlatLabSim:
 
     def environment_state(self) -> np.ndarray:
         """Privileged state (14,): object pose (pos, quat wxyz), size, deformable flag, table
-        height, usable-edge x, object mass.  Names: ``strategies.ENV_STATE_NAMES``."""
+        height, usable-edge x, object mass, in the order of :data:`ENV_STATE_NAMES`."""
         pos, quat = self.object_pose()
-        return np.r_[
+        return np.r_[  # ENV_STATE_NAMES order
             pos, quat, self.object_extent(), float(self.obj.deformable),
             self.cell.table_height, self.cell.edge_x, self.obj.mass,
         ].astype(np.float32)  # fmt: skip

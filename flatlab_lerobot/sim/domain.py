@@ -84,13 +84,13 @@ def apply_domain(sim, domain: Domain | None) -> None:
     values (the start posture is ``sim.reset``'s ``home_offsets``).  Call before ``sim.reset``.
     ``None``: back to the nominal model (nothing to do when no domain was ever applied)."""
     m = sim.model
-    nom = sim.__dict__.get("_domain_nominal")
+    nom = sim.domain_nominal
     if domain is None:
         if nom is None:
             return
         domain = Domain()
     if nom is None:
-        nom = sim._domain_nominal = _Nominal(
+        nom = sim.domain_nominal = _Nominal(
             m.body_mass.copy(), m.body_inertia.copy(), m.geom_friction.copy(), m.flex_friction.copy(),
             m.cam_pos.copy(), m.cam_quat.copy(),
         )  # fmt: skip
@@ -122,6 +122,6 @@ def apply_domain(sim, domain: Domain | None) -> None:
             q = np.zeros(4)
             mujoco.mju_mulQuat(q, nom.cam_quat[i], dq)
             m.cam_quat[i] = q
-    if domain.mass_scale != sim.__dict__.get("_domain_mass_scale", 1.0):
+    if domain.mass_scale != sim.domain_mass_scale:
         mujoco.mj_setConst(m, sim.data)  # mass-derived constants (subtree masses, inverse weights)
-        sim._domain_mass_scale = domain.mass_scale
+        sim.domain_mass_scale = domain.mass_scale

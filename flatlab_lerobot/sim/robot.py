@@ -14,6 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from flatlab_lerobot.constants import BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE
 from flatlab_lerobot.paths import ENVS_DIR
 
 PANDA_XML: Path = ENVS_DIR / "robot" / "panda.xml"
@@ -24,9 +25,6 @@ GRIPPER_MAX_WIDTH = 0.08  # metres between the finger pads, fully open
 # A comfortable "ready" pose: elbow up, hand pointing down.
 HOME_Q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785398])
 
-# Collision bit masks: an arm never collides with itself, does collide with the other arm,
-# the table and the objects.  (contype_a & conaffinity_b) or (contype_b & conaffinity_a).
-BIT_TABLE, BIT_OBJECT, BIT_LEFT, BIT_RIGHT = 1, 2, 4, 16
 ARM_BITS = {"left": BIT_LEFT, "right": BIT_RIGHT}
 
 

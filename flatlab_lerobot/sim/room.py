@@ -29,6 +29,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from flatlab_lerobot.constants import PROP_NAMES
+
 BACK_WALL_X = -1.6  # centre of the back wall; its inner face is at -1.58
 WALL_FACE_X = -1.58
 SIDE_WALL_Y = 2.4  # side walls (room scenes only); inner faces at +-2.38
@@ -605,7 +607,9 @@ PROPS: dict[str, Prop] = {
     "tape_dispenser": Prop(_tape_dispenser, 0.5, 0.8),
     "conveyor": Prop(_conveyor, 0.58, 2.1),
 }
-"""Every prop name a scene may list (``envs/scenes/*.yaml`` field ``props``)."""
+"""A builder for every prop name a scene may list (:data:`flatlab_lerobot.constants.PROP_NAMES`)."""
+if set(PROPS) != set(PROP_NAMES):
+    raise ImportError(f"sim.room.PROPS and constants.PROP_NAMES disagree: {sorted(set(PROPS) ^ set(PROP_NAMES))}")
 
 
 @dataclass(frozen=True)

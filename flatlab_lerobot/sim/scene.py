@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.assets import OBJECT_BODY, object_xml
-from flatlab_lerobot.catalog import ObjectSpec
-from flatlab_lerobot.sim.robot import ARMS, BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, attach_arm
+from flatlab_lerobot.assets import object_xml
+from flatlab_lerobot.catalog import ObjectSpec, get_scene
+from flatlab_lerobot.constants import BIT_LEFT, BIT_OBJECT, BIT_RIGHT, BIT_TABLE, OBJECT_BODY
+from flatlab_lerobot.sim.robot import ARMS, attach_arm
 from flatlab_lerobot.sim.room import (
     ARM_CLEARANCE,
     ARM_EDGE_REACH,
@@ -76,7 +77,7 @@ class CellConfig:
     rigid_timestep / cloth_timestep: physics step for scenes without / with a cloth (s); see
     RIGID_TIMESTEP for why rigid scenes step at 1 ms.
 
-    Scene dressing (``flatlab_lerobot.catalog.cell_config_for_scene`` fills these from
+    Scene dressing (:meth:`from_scene` fills these from
     ``envs/scenes``; the defaults give the plain cell): edge: front-edge profile (square | rounded |
     bevelled, see ``sim/room.py``); table_rgba2 / table_pattern: second colour and pattern (flat |
     checker | grain) of the top; room: room category ('' = no side walls, no room floor); wall_rgba /
@@ -111,6 +112,18 @@ class CellConfig:
         if self.arm_base_x is None:
             self.arm_base_x = max(0.0, self.table_size[0] / 2 - ARM_EDGE_REACH)
         self.props = tuple(self.props)
+
+    @classmethod
+    def from_scene(cls, scene_id: str, scenes_dir=None, materials_dir=None) -> CellConfig:
+        """The cell of scene ``scene_id`` (``envs/scenes``): table geometry, edge profile, material
+        (friction, colours, pattern), room colours and props.  The arm bases follow the table
+        (``arm_base_y`` = half-width + 0.2 m, the default).  KeyError for an unknown id."""
+        s, mat = get_scene(scene_id, scenes_dir, materials_dir)
+        return cls(
+            table_height=s.table_height, table_size=s.table_size, table_thickness=s.table_thickness,
+            table_friction=mat.friction, table_rgba=mat.rgba, table_rgba2=mat.rgba2, table_pattern=mat.pattern,
+            edge=s.edge, room=s.room, wall_rgba=s.wall_rgba, floor_rgba=s.floor_rgba, props=s.props, scene_id=s.id,
+        )  # fmt: skip
 
     @property
     def edge_x(self) -> float:

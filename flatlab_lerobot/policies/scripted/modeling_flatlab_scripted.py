@@ -13,14 +13,15 @@ from torch import Tensor
 
 from flatlab_lerobot.lerobot_env import OBS_CELL
 from flatlab_lerobot.policies.scripted.configuration_flatlab_scripted import FlatLabScriptedConfig
+from flatlab_lerobot.sim.core import ENV_STATE_INDEX
 
 
 def pick_strategy(env_state, thick_threshold: float = 0.04) -> str:
     """The ``auto`` rule: C if deformable, else B if thickness >= threshold, else A."""
     v = np.asarray(env_state, dtype=float)
-    if v[10] > 0.5:
+    if v[ENV_STATE_INDEX["deformable"]] > 0.5:
         return "C"
-    return "B" if v[9] >= thick_threshold else "A"
+    return "B" if v[ENV_STATE_INDEX["obj_size_z"]] >= thick_threshold else "A"
 
 
 class _Episode:

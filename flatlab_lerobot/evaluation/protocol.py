@@ -223,9 +223,9 @@ class Evaluator:
                 x, y, yaw = env.placement
                 st = env.sim.grasp_status()
                 success = bool(ep["success"])
-                reason = ""
-                if not success:
-                    reason = env._done_reason or "timeout: " + st.shortfall
+                # the env's own outcome of the episode lerobot's eval_policy just ran (its loop, not
+                # flatlab_lerobot.rollout: a trial must be exactly a lerobot-eval episode)
+                reason = "" if success else env.failure_reason or st.shortfall.text()
                 yield {
                     "policy": self.spec["policy"],
                     "object_id": spec.id,
@@ -237,7 +237,7 @@ class Evaluator:
                     "strategy": strategy,
                     "S": None if strategy is None else strategy == spec.strategy,
                     "G": success,
-                    "steps": int(env._steps),
+                    "steps": int(env.steps),
                     "sim_time_s": round(float(env.sim.data.time), 3),
                     "placement": {"x": x, "y": y, "yaw_deg": math.degrees(yaw)},
                     "final_clearance_m": round(float(st.clearance), 4),

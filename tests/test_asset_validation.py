@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from flatlab_lerobot.bench.validation import analyse, grounded_label, markdown, read_runs
+from flatlab_lerobot.evaluation.asset_validation import analyse, grounded_label, markdown, read_runs
 from flatlab_lerobot.catalog import get_object
 
 
@@ -83,7 +83,7 @@ def test_apply_labels_edits_only_the_label_lines(tmp_path):
     import shutil
 
     from flatlab_lerobot import catalog
-    from flatlab_lerobot.bench import validation as V
+    from flatlab_lerobot.evaluation import asset_validation as V
 
     src = catalog.get_object("disk_cork_coaster").source
     path = tmp_path / "disk.yaml"

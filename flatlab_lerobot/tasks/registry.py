@@ -10,26 +10,24 @@ Every predicate reads only the simulation (:class:`~flatlab_lerobot.sim.core.Fla
 the episode context (:class:`TaskContext`: the object's start pose and the task target), and
 every one can fail (see ``tests/test_tasks.py``).
 
-:func:`run_task_episode` runs one episode (scripted expert, or no action) and records a
-:class:`Trajectory`; :func:`episode_metrics` turns a recorded trajectory into the per-episode
-metrics (success, time/steps to completion, TCP jerk, primitives executed, strategy).
+A task episode runs in the env (``FlatLabEnv(task=...)``) through the one episode loop,
+:func:`flatlab_lerobot.rollout.run_task_episode`; its record's ``metrics()`` are the per-episode
+metrics (success, time/steps to completion, TCP jerk (:func:`mean_squared_jerk`), primitives executed).
 :data:`SCENARIOS` chains several objects in ONE cell (``clear_desk``: a cluttered desk of five
-Test-beta objects cleared one after another, :mod:`flatlab_lerobot.desk`); :func:`run_scenario`
+Test-beta objects cleared one after another, :mod:`flatlab_lerobot.tasks.clear_desk`); :func:`run_scenario`
 runs one with the scripted expert and returns its metrics.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.catalog import get_object
-from flatlab_lerobot.desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
-from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim, SimulationDiverged
+from flatlab_lerobot.tasks.clear_desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
+from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim
 from flatlab_lerobot.sim.robot import ARMS
 
 # thresholds (SI units) ------------------------------------------------------------------------
@@ -45,17 +43,22 @@ ON_TABLE_CLEARANCE = 0.01  # m: "still on the table": lowest point at most this 
 
 
 # ------------------------------------------------------------------------------- specs
+DEFAULT_PLANAR = 0.05  # m: the benchmark's reset distribution, planar offset of the object in x and y ...
+DEFAULT_YAW_DEG = 30.0  # ... and its yaw (degrees), both uniform in +-
+
+
 @dataclass(frozen=True)
 class ResetDistribution:
     """Object placement at reset: uniform planar offset in ±``planar`` m (x and y) and yaw in
-    ±``yaw_deg`` degrees.  The default equals :func:`flatlab_lerobot.demo.sample_placement`.
+    ±``yaw_deg`` degrees.  The env samples it (:meth:`sample` on its seeded ``np_random``), so
+    ``sample(seed)`` is the placement of ``env.reset(seed=seed)``.
 
     ``scenes``: optional scene ids (``envs/scenes``) an episode's cell is drawn from, uniformly, by
     :meth:`scene` (its own random stream, so the placement of a seed does not change); empty (the
     default) = the plain default cell."""
 
-    planar: float = 0.05
-    yaw_deg: float = 30.0
+    planar: float = DEFAULT_PLANAR
+    yaw_deg: float = DEFAULT_YAW_DEG
     scenes: tuple[str, ...] = ()
 
     def scene(self, seed: int) -> str | None:
@@ -64,13 +67,13 @@ class ResetDistribution:
             return None
         return self.scenes[int(np.random.default_rng([seed, 7]).integers(len(self.scenes)))]
 
-    def sample(self, seed: int) -> tuple[float, float, float]:
-        rng = np.random.default_rng(seed)
-        return (
-            float(rng.uniform(-self.planar, self.planar)),
-            float(rng.uniform(-self.planar, self.planar)),
-            float(np.radians(rng.uniform(-self.yaw_deg, self.yaw_deg))),
-        )
+    def sample(self, rng: np.random.Generator | int) -> tuple[float, float, float]:
+        """(x, y, yaw in rad) drawn from ``rng`` (a Generator, or a seed for ``default_rng``)."""
+        if not isinstance(rng, np.random.Generator):
+            rng = np.random.default_rng(rng)
+        x, y = rng.uniform(-self.planar, self.planar, size=2)
+        yaw_range = np.deg2rad(float(self.yaw_deg))
+        return float(x), float(y), float(rng.uniform(-yaw_range, yaw_range))
 
 
 @dataclass
@@ -113,7 +116,7 @@ def finger_contacts(sim: FlatLabSim, arm: str) -> list[tuple[str, np.ndarray, fl
     for i in range(d.ncon):
         c = d.contact[i]
         g1, g2 = int(c.geom[0]), int(c.geom[1])
-        obj = sim._is_object(np.array([g1, g2]), np.array([c.flex[0], c.flex[1]]))
+        obj = sim.is_object(np.array([g1, g2]), np.array([c.flex[0], c.flex[1]]))
         if g1 in fingers and obj[1]:
             finger, sign = g1, 1.0  # frame normal points from geom1 (finger) to geom2 (object)
         elif g2 in fingers and obj[0]:
@@ -278,7 +281,7 @@ TASKS: dict[str, TaskSpec] = {
 @dataclass(frozen=True)
 class Scenario:
     """A chained scenario: several objects in ONE cell, cleared one after another in the same
-    physics episode (:mod:`flatlab_lerobot.desk`).  ``success(sim, ctx)`` is its predicate,
+    physics episode (:mod:`flatlab_lerobot.tasks.clear_desk`).  ``success(sim, ctx)`` is its predicate,
     checked after every control step like a task's; ``reset`` the layout distribution (which
     objects, planar poses and yaws, clearing order; per-object step budgets)."""
 
@@ -321,39 +324,6 @@ def get_task(task_id: str) -> TaskSpec:
 
 
 # ------------------------------------------------------------------------------- episodes
-@dataclass
-class Trajectory:
-    """What one episode recorded, one entry per control step (after the step)."""
-
-    task_id: str
-    object_id: str
-    strategy: str | None  # None: no action (the arms hold their home posture)
-    seed: int
-    dt: float
-    tcp: list = field(default_factory=list)  # (2, 3) TCP positions, arms in ARMS order
-    stage: list = field(default_factory=list)
-    primitive: list = field(default_factory=list)  # primitive index (-1: none)
-    success: list = field(default_factory=list)  # predicate value
-    failure: str = ""
-    wall_s: float = 0.0
-    scene: str | None = None  # scene id (None: the default cell)
-
-
-def start_episode(task: TaskSpec, object_id: str, seed: int, scene: str | None = None) -> tuple[FlatLabSim, TaskContext]:
-    """A fresh cell (``scene``, else the task's reset distribution's scene for ``seed``, else the
-    default cell) with ``object_id`` placed for ``seed``."""
-    scene = scene or task.reset.scene(seed)
-    cell = None
-    if scene:
-        from flatlab_lerobot.catalog import cell_config_for_scene
-        from flatlab_lerobot.sim.scene import CellConfig
-
-        cell = CellConfig(**cell_config_for_scene(scene))
-    sim = FlatLabSim(get_object(object_id), cell)
-    sim.reset(*task.reset.sample(seed))
-    return sim, task_context(task, sim)
-
-
 def task_context(task: TaskSpec, sim: FlatLabSim) -> TaskContext:
     """The per-episode context of ``task`` for the object as it lies now (right after a reset)."""
     pos, quat = sim.object_pose()
@@ -361,52 +331,6 @@ def task_context(task: TaskSpec, sim: FlatLabSim) -> TaskContext:
     if task.make_target is not None:
         task.make_target(sim, ctx)
     return ctx
-
-
-def run_task_episode(
-    task_id: str,
-    object_id: str | None = None,
-    strategy: str | None = "expert",
-    seed: int = 0,
-    max_steps: int | None = None,
-    scene: str | None = None,
-) -> Trajectory:
-    """One episode of ``task_id`` on ``object_id`` (default: the task's reference object).
-    ``strategy``: "expert" (the task's expert strategy), "A"/"B"/"C", or None (no action).
-    ``scene``: a scene id of ``envs/scenes`` (default: the task's reset distribution decides).
-    Stops at the first step where the predicate holds, or after ``max_steps`` (default: the
-    task's episode length)."""
-    task = get_task(task_id)
-    object_id = object_id or task.reference_object
-    if strategy == "expert":
-        strategy = task.expert_strategy
-    sim, ctx = start_episode(task, object_id, seed, scene)
-    traj = Trajectory(task_id, object_id, strategy, seed, sim.control_dt, scene=sim.cell.scene_id or None)
-    if strategy is not None:
-        from flatlab_lerobot.strategies import Expert
-
-        gen = Expert(sim.cell, sim.control_dt).episode(strategy, lambda: (sim.joint_positions(), sim.environment_state()))
-    else:
-        hold = sim.joint_positions()
-        gen = iter(lambda: ("none", -1, hold), None)
-    t0 = time.perf_counter()
-    try:
-        for _ in range(max_steps or task.episode_length):
-            stage, prim, action = next(gen)
-            sim.step(action)
-            ok = bool(task.success(sim, ctx))
-            traj.tcp.append(np.stack([sim.tcp_pose(a)[0] for a in ARMS]))
-            traj.stage.append(stage)
-            traj.primitive.append(int(prim))
-            traj.success.append(ok)
-            if ok:
-                break
-    except SimulationDiverged as exc:
-        traj.failure = f"diverged: {exc}"
-    if not any(traj.success) and not traj.failure:
-        traj.failure = "timeout"
-    traj.wall_s = time.perf_counter() - t0
-    return traj
 
 
 def mean_squared_jerk(tcp: np.ndarray, dt: float) -> float:
@@ -417,30 +341,6 @@ def mean_squared_jerk(tcp: np.ndarray, dt: float) -> float:
         return float("nan")
     jerk = np.diff(p, n=3, axis=0) / dt**3
     return float(np.mean(np.sum(jerk**2, axis=-1)))
-
-
-def episode_metrics(traj: Trajectory) -> dict:
-    """Per-episode metrics from a recorded trajectory: success, time and steps to completion
-    (None when it failed), TCP smoothness (mean squared jerk up to completion), number of
-    primitives executed, strategy used."""
-    success = any(traj.success)
-    n = traj.success.index(True) + 1 if success else len(traj.success)
-    prims = {p for p in traj.primitive[:n] if p >= 0}
-    return {
-        "task": traj.task_id,
-        "object_id": traj.object_id,
-        "seed": traj.seed,
-        "strategy": traj.strategy,
-        "success": success,
-        "steps_to_completion": n if success else None,
-        "time_to_completion_s": round(n * traj.dt, 3) if success else None,
-        "steps": len(traj.success),
-        "mean_squared_jerk": mean_squared_jerk(traj.tcp[:n], traj.dt),
-        "primitives_executed": len(prims),
-        "failure": traj.failure,
-        "wall_s": round(traj.wall_s, 3),
-        "scene": traj.scene,
-    }
 
 
 def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert") -> dict:

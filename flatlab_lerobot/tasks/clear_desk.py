@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlab_lerobot.catalog import ObjectSpec, load_objects
-from flatlab_lerobot.sim.core import FlatLabSim, SimulationDiverged
+from flatlab_lerobot.sim.core import FailureReason, FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, HOME_Q
 from flatlab_lerobot.sim.scene import CellConfig
 
@@ -442,7 +442,7 @@ def run_desk_episode(
             for i, it in enumerate(layout.items):
                 ep.per_object.append(_clear_one(sim, expert, i, strategies[i], config.budget[it.obj.strategy], record))
     except SimulationDiverged as exc:
-        ep.failure = f"diverged: {exc}"
+        ep.failure = FailureReason.DIVERGED.text(str(exc))
     ok = cleared(sim)
     for i in range(len(ep.per_object), len(ep.object_ids)):  # no action, or not reached (diverged)
         ep.per_object.append(
@@ -458,7 +458,7 @@ def run_desk_episode(
         rec["lifted"] = rec["lifted"] or bool(sim.lifted[i])
         rec["cleared"] = bool(ok[i])
     if not ep.failure and not any(ep.success):
-        ep.failure = f"cleared {int(ok.sum())}/{len(ok)}"
+        ep.failure = FailureReason.TIMEOUT.text(f"cleared {int(ok.sum())}/{len(ok)}")
     ep.wall_s = time.perf_counter() - t0
     return ep
 

@@ -1,0 +1,65 @@
+"""Strategy B, dual-arm squeeze: two arms touch opposite sides, squeeze, lift together."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flatlab_lerobot.primitives import ArmMotion, Primitive
+from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, tcp_rotation
+from flatlab_lerobot.strategies.world import DOWN, FINGER_HALF_WIDTH, World, hold, shifted, vec
+
+# ---------------------------------------------------------------------------- strategy B
+B_OPEN = GRIPPER_MAX_WIDTH  # open fingers: two contact patches far apart resist tilting
+B_SQUEEZE = 0.025  # how far each hand is commanded past the touched face (m)
+
+
+def _b_targets(w: World, inset: float, dz: float = 0.0):
+    u, half = w.squeeze_axis()
+    z = w.table_height + max(0.014, w.size[2] - 0.04) + dz
+    f = np.cross(vec(0, 0, 1), u)
+    R = tcp_rotation(DOWN, f)
+    out = {}
+    for arm, s in (("left", 1.0), ("right", -1.0)):
+        p = w.pos + s * (half + FINGER_HALF_WIDTH - inset) * u
+        out[arm] = (vec(p[0], p[1], z), R)
+    return out
+
+
+B_ABOVE = 0.05  # the hands come down to the touch start from this far above the object's top (m)
+
+
+def b_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
+    """Both hands straight above their touch start.  A joint-space transit straight to a start
+    beside a tall, large object swept the hand onto its top edge (a 6 cm album, seen from above):
+    the hand then pressed on the top instead of squeezing the side."""
+    top = w.table_height + w.size[2] + B_ABOVE
+    motions = {}
+    for a, (p, R) in _b_targets(w, -0.04).items():
+        above = (vec(p[0], p[1], max(p[2], top)), R)
+        motions[a] = ArmMotion(above, above, (B_OPEN, B_OPEN))
+    return Primitive("move", motions, 0.2, transit=2.0)
+
+
+def b_touch(ex, w: World, poses, grip, ctx) -> Primitive:
+    far, near = _b_targets(w, -0.04), _b_targets(w, 0.0)
+    return Primitive("touch", {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}, 1.0, transit=0.8)
+
+
+def b_squeeze(ex, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive(
+        "squeeze", {a: ArmMotion(poses[a], shifted(poses[a], _b_inward(w, a) * B_SQUEEZE), (B_OPEN, B_OPEN)) for a in ARMS}, 0.6
+    )
+
+
+def _b_inward(w: World, arm: str) -> np.ndarray:
+    u, _ = w.squeeze_axis()
+    return -u if arm == "left" else u
+
+
+def b_lift(ex, w: World, poses, grip, ctx) -> Primitive:
+    return Primitive("lift", {a: ArmMotion(poses[a], shifted(poses[a], (0, 0, 0.16)), (B_OPEN, B_OPEN)) for a in ARMS}, 1.6)
+
+
+
+STAGES = (b_preapproach, b_touch, b_squeeze, b_lift, hold)
+"""Strategy B's stages."""
