@@ -17,8 +17,8 @@ import pytest
 from lerobot.configs import FeatureType, PolicyFeature
 
 import flatlab_lerobot  # noqa: F401  registers the env and policy types
-from flatlab_lerobot.bench.protocol import EvalError
-from flatlab_lerobot.bench.protocol import main as flatlab_eval
+from flatlab_lerobot.evaluation.protocol import EvalError
+from flatlab_lerobot.evaluation.protocol import main as flatlab_eval
 from flatlab_lerobot.env import FlatLabEnv
 from flatlab_lerobot.lerobot_env import (
     EnvConfigError,
