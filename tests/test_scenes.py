@@ -13,7 +13,7 @@ import pytest
 import flatlab_lerobot  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 from flatlab_lerobot.catalog import CatalogError, get_object, load_materials, load_scenes
 from flatlab_lerobot.sim.cameras import GEOM, CameraRig
-from flatlab_lerobot.sim.core import FlatLabSim
+from flatlab_lerobot.sim.core import FailureReason, FlatLabSim
 from flatlab_lerobot.sim.room import KEEP_OUT_BEHIND, KEEP_OUT_SIDE, PROPS
 from flatlab_lerobot.sim.scene import CellConfig, build_model, scene_xml
 from flatlab_lerobot.tasks import ResetDistribution
@@ -183,7 +183,7 @@ def test_object_pushed_off_the_table_lands_on_the_floor(oid):
     lowest = sim.object_points(0)[:, 2].min()
     assert -0.001 < lowest < 0.005, lowest
     st = sim.grasp_status()
-    assert st.fallen and st.shortfall == "object fell off the table"
+    assert st.fallen and st.shortfall == FailureReason.FELL_OFF_TABLE == "fell_off_table"
     g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor_collision")
     assert m.geom_group[g] >= 3 and m.geom_contype[g] == 0  # hidden from renders, arms never touch it
 
