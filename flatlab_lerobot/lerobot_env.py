@@ -23,8 +23,9 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from flatlab_lerobot.env import GYM_ID, make_flatlab_env
-from flatlab_lerobot.sim.core import EE_POSE_NAMES
+from flatlab_lerobot.sim.core import EE_POSE_NAMES, ENV_STATE_DIM, STATE_NAMES
 from flatlab_lerobot.sim.scene import CALIBRATION_NAMES, default_cameras
+from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
 CAMERA_NAMES = tuple(c.name for c in default_cameras(0.0))
 ACTION_DIMS = {"joint": 16, "ee": 14}
@@ -78,9 +79,9 @@ class FlatLabEnvConfig(EnvConfig):
     # Action space: joint (16: 7 joint targets + gripper width per arm) or ee (14: TCP xyz + rotvec + gripper per arm).
     action_mode: str = "joint"
     # Object placement: uniform offset in [-xy_range, xy_range] m along x and y around the table centre.
-    xy_range: float = 0.05
+    xy_range: float = DEFAULT_PLANAR
     # Object placement: uniform yaw in [-yaw_range_deg, yaw_range_deg] degrees.
-    yaw_range_deg: float = 30.0
+    yaw_range_deg: float = DEFAULT_YAW_DEG
     # Render the camera images (false: no observation.images.*; faster for policies that do not look).
     obs_pixels: bool = True
     # Compute the point clouds (false: no observation.pointcloud / observation.object_pointcloud).
@@ -99,10 +100,10 @@ class FlatLabEnvConfig(EnvConfig):
         s = self.image_size
         feats = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIMS[self.action_mode],)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(16,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),)),
             "ee_pose": PolicyFeature(type=FeatureType.STATE, shape=(len(EE_POSE_NAMES),)),
             "cell": PolicyFeature(type=FeatureType.STATE, shape=(len(CALIBRATION_NAMES),)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(14,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(ENV_STATE_DIM,)),
         }
         fmap = {
             ACTION: ACTION, "agent_pos": OBS_STATE, "ee_pose": OBS_EE_POSE, "cell": OBS_CELL,

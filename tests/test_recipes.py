@@ -9,14 +9,14 @@ import pytest
 
 from flatlab_lerobot.paths import DATASETS_DIR, POLICIES_DIR
 
-RECIPES = sorted(POLICIES_DIR.glob("*.json"))
+RECIPES = sorted(POLICIES_DIR.glob("**/*.json"))
 
 
 def test_there_are_recipes():
-    assert any(p.name == "act_tiny_rigid.json" for p in RECIPES), RECIPES
+    assert any(p.relative_to(POLICIES_DIR).as_posix() == "act/tiny_rigid.json" for p in RECIPES), RECIPES
 
 
-@pytest.mark.parametrize("path", RECIPES, ids=lambda p: p.name)
+@pytest.mark.parametrize("path", RECIPES, ids=lambda p: p.relative_to(POLICIES_DIR).as_posix())
 def test_recipe_parses_as_a_train_pipeline_config(path):
     import lerobot.policies  # noqa: F401  registers lerobot's policy types, as lerobot-train does
     from lerobot.configs.train import TrainPipelineConfig
