@@ -62,6 +62,23 @@ def load_inputs(set_dir: Path, inputs) -> dict[str, np.ndarray]:
     return out
 
 
+def check_train_only(index, set_dir) -> None:
+    """Refuse a set holding any object outside the catalog's train split: by the set's own
+    ``split`` column and by the catalog's split of every base object (Test-alpha / Test-beta
+    objects never reach a training set)."""
+    from flatlab_lerobot.catalog import load_objects
+
+    catalog = load_objects()
+    bases = sorted(set(index.base_object_id))
+    unknown = [b for b in bases if b not in catalog]
+    if unknown:
+        raise ValueError(f"--set: {set_dir}: base object(s) {unknown[:5]} are not in the catalog")
+    bad = sorted({b for b in bases if catalog[b].split != "train"} | set(index.base_object_id[index.split != "train"]))
+    if bad:
+        raise ValueError(f"--set: {set_dir} holds non-train object(s) {bad[:5]} (field 'split'); "
+                         "only train objects may be trained on")  # fmt: skip
+
+
 def episode_plan(index, seed: int = 0) -> list[tuple[str, int, list[int]]]:
     """[(base object id, view, set rows in frame order)], view-major then catalog order: each
     episode's rows interleaved round-robin over strategies (seeded shuffle within a strategy)."""
@@ -80,7 +97,7 @@ def episode_plan(index, seed: int = 0) -> list[tuple[str, int, list[int]]]:
 
 
 def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = False, seed: int = 0,
-           repo_id: str = "local/flatlab_strategy") -> dict:  # fmt: skip
+           repo_id: str = "local/flatlab_strategy", points: int | None = None) -> dict:  # fmt: skip
     """Write the LeRobotDataset; returns a summary dict."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -88,11 +105,16 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
 
     t0 = time.perf_counter()
     clouds, index, meta = load(set_dir)
-    bad = sorted(set(index.split) - {"train"})
-    if bad:
-        objs = sorted(set(index.base_object_id[index.split != "train"]))[:5]
-        raise ValueError(f"--set: {set_dir} holds split(s) {bad} (e.g. {objs}); only train objects may be trained on")
+    check_train_only(index, set_dir)
     arrays = load_inputs(set_dir, inputs)
+    if points is not None:  # a seeded random subset of every cloud (smaller files, faster loading)
+        rng = np.random.default_rng(seed)
+        for key, arr in arrays.items():
+            if arr.ndim == 3 and arr.shape[-1] == 3 and not key.startswith("observation.images."):
+                if points > arr.shape[1]:
+                    raise ValueError(f"--points: {points} > the set's {arr.shape[1]} points per cloud")
+                idx = np.stack([rng.permutation(arr.shape[1])[:points] for _ in range(len(arr))])
+                arrays[key] = np.take_along_axis(arr, idx[..., None], axis=1)
     if originals_only:
         index = index[index.transform == "original"]
     out = Path(out)
@@ -127,7 +149,7 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
     pd.DataFrame(frames).to_parquet(tmp / FRAMES_FILE, index=False)
     summary = {
         "set": str(set_dir), "inputs": list(inputs), "originals_only": originals_only, "seed": seed,
-        "n_frames": len(frames), "n_episodes": len(plan), "n_objects": len(base_ids),
+        "points": points, "n_frames": len(frames), "n_episodes": len(plan), "n_objects": len(base_ids),
         "views": sorted({v for _, v, _ in plan}), "set_meta_seed": meta.get("seed"),
         "export_seconds": round(time.perf_counter() - t0, 1),
     }  # fmt: skip
@@ -146,12 +168,15 @@ def main(argv=None) -> int:
     ap.add_argument("--inputs", default="object", help=f"comma-separated inputs among {list(INPUTS)} (default: object)")
     ap.add_argument("--originals-only", action="store_true", help="no transformed variants (ablations A-2 / A-3)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the frame order within an episode")
+    ap.add_argument("--points", type=int, default=None, help="keep a seeded random subset of N points per cloud")
     args = ap.parse_args(argv)
     inputs = tuple(s.strip() for s in args.inputs.split(",") if s.strip())
     if not inputs or any(i not in INPUTS for i in inputs):
         ap.error(f"--inputs: unknown input(s) in {args.inputs!r}; known: {list(INPUTS)}")
     try:
-        summary = export(args.set, args.out, inputs, args.originals_only, args.seed)
+        if args.points is not None and args.points < 1:
+            raise ValueError(f"--points: must be >= 1, got {args.points}")
+        summary = export(args.set, args.out, inputs, args.originals_only, args.seed, points=args.points)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         ap.error(str(exc))
     print(f"strategy export: {summary['n_frames']} frames in {summary['n_episodes']} episodes "
