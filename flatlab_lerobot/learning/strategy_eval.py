@@ -240,6 +240,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ambiguity", type=Path, help="strategy set with cloths and rigid counterparts: measure them")
     ap.add_argument("--out", type=Path, help="JSON file to write")
     ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the recipe)")
+    ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
+                    "copied into the result as 'training'")
     args = ap.parse_args(argv)
     if not (args.policy or args.ambiguity):
         ap.error("give --policy (with --set) and/or --ambiguity")
@@ -266,9 +268,11 @@ def main(argv=None) -> int:
                 t = json.loads(tc.read_text())
                 res["train"] = {"seed": t.get("seed"), "steps": t.get("steps"), "batch_size": t.get("batch_size"),
                                 "dataset_root": t["dataset"].get("root")}  # fmt: skip
+        if args.train_wall:
+            res["training"] = json.loads(args.train_wall.read_text())
         if args.ambiguity:
             res["ambiguity"] = ambiguity(args.ambiguity)
-    except (FileNotFoundError, ValueError, KeyError) as exc:
+    except (FileNotFoundError, ValueError, KeyError, json.JSONDecodeError) as exc:
         ap.error(str(exc))
     res.update({"wall_s": round(time.perf_counter() - t0, 1), "machine": MACHINE, "git_commit": _git_commit(),
                 "python": platform.python_version(), "cpu_count": os.cpu_count()})  # fmt: skip
