@@ -228,6 +228,17 @@ def test_export_is_a_train_only_lerobot_dataset(exported):
     assert sorted(frames[frames.episode_index.isin(val)].view.unique()) == [2] and len(val) == 4
 
 
+def test_export_originals_only_and_points(exported, tmp_path):
+    set_dir, _, _ = exported
+    s = X.export(set_dir, tmp_path / "orig", originals_only=True, points=32)
+    frames = pd.read_parquet(tmp_path / "orig" / X.FRAMES_FILE)
+    assert s["n_frames"] == 12 and (frames["transform"] == "original").all()
+    info = json.loads((tmp_path / "orig" / "meta" / "info.json").read_text())
+    assert info["features"][CLOUD_KEY]["shape"] == [32, 3]
+    with pytest.raises(ValueError, match="--points"):
+        X.export(set_dir, tmp_path / "big", points=10_000)
+
+
 # ------------------------------------------------------------------------------ the real CLI
 @pytest.mark.slow
 def test_lerobot_train_cli_trains_and_checkpoint_reloads(exported, tmp_path):

@@ -90,7 +90,8 @@ def episode_plan(index, seed: int = 0) -> list[tuple[str, int, list[int]]]:
             rows = index.index[(index.base_object_id == base) & (index.view == view)].to_numpy()
             if not len(rows):
                 continue
-            by = [rng.permutation(rows[index.strategy.to_numpy()[rows] == s]) for s in sorted(set(index.strategy[rows]))]
+            strat = index.loc[rows, "strategy"].to_numpy()
+            by = [rng.permutation(rows[strat == s]) for s in sorted(set(strat))]
             order = [int(r[i]) for i in range(max(map(len, by))) for r in by if i < len(r)]
             plan.append((base, int(view), order))
     return plan
@@ -116,7 +117,7 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
                 idx = np.stack([rng.permutation(arr.shape[1])[:points] for _ in range(len(arr))])
                 arrays[key] = np.take_along_axis(arr, idx[..., None], axis=1)
     if originals_only:
-        index = index[index.transform == "original"]
+        index = index[index["transform"] == "original"]
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"--out: {out} exists; remove it first")
