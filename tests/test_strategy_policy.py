@@ -57,7 +57,8 @@ def synthetic_set(out: Path, objects=None, views: int = 3, n: int = 128, split_o
                              "catalog_strategy": o.strategy, "object_id": oid if variant == "original" else f"{oid}@{variant}",
                              "base_object_id": oid, "category": o.category, "split": split_override or o.split,
                              "material": "rigid" if variant == "rigid" else o.material, "transform": variant,
-                             "rigid_counterpart": variant == "rigid", "view": view, "seed": view})  # fmt: skip
+                             "rigid_counterpart": variant == "rigid", "view": view, "seed": view,
+                             "radius": 0.2 if variant == "original" else 0.14})  # fmt: skip
     clouds = np.stack(clouds).astype(np.float32)
     extras = {"scene": clouds[:, ::-1].copy(), "rgb": rng.integers(0, 255, (len(clouds), 16, 16, 3), dtype=np.uint8)}
     meta = {"n_clouds": len(clouds), "seed": 0, "settings": {"views": views}}
@@ -112,13 +113,16 @@ def test_policy_never_reads_environment_state():
 
 
 def test_cloud_normalization_invariance():
-    """A raw world-frame cloud and its normalized version give the same logits (translation and
-    scale are removed inside the model, as for the env's raw clouds)."""
-    policy = _policy()
+    """The placement (translation) never matters; the size does only through use_scale (the
+    unit-sphere normalization happens inside the model, as for the env's raw clouds)."""
     cloud = torch.randn(2, 128, 3)
-    a = policy.predict_logits({CLOUD_KEY: cloud})
-    b = policy.predict_logits({CLOUD_KEY: cloud * 0.3 + torch.tensor([0.1, -0.2, 0.75])})
-    assert torch.allclose(a, b, atol=1e-4)
+    shift = torch.tensor([0.1, -0.2, 0.75])
+    for use_scale in (True, False):
+        policy = _policy(use_scale=use_scale)
+        a = policy.predict_logits({CLOUD_KEY: cloud})
+        assert torch.allclose(a, policy.predict_logits({CLOUD_KEY: cloud + shift}), atol=1e-4)
+        scaled = policy.predict_logits({CLOUD_KEY: cloud * 0.3 + shift})
+        assert torch.allclose(a, scaled, atol=1e-4) != use_scale
 
 
 def test_nt_xent_matches_formula():

@@ -57,8 +57,13 @@ def set_inputs(policy, set_dir: Path) -> np.ndarray:
     """The policy's input for every row of a strategy set (clouds, or RGB crops as (3, H, W) floats)."""
     from flatlab_lerobot.learning.strategy_export import INPUTS, load_inputs
 
+    from flatlab_lerobot.learning.strategy_export import metric_clouds
+    from flatlab_lerobot.learning.strategy_set import load
+
     name = next((n for n, (k, _) in INPUTS.items() if k == policy.config.input_key), None)
-    arr = load_inputs(set_dir, [name])[policy.config.input_key]
+    arrays = load_inputs(set_dir, [name])
+    metric_clouds(arrays, load(set_dir)[1])
+    arr = arrays[policy.config.input_key]
     if policy.config.is_image:
         arr = arr.transpose(0, 3, 1, 2).astype(np.float32) / 255.0
     return arr

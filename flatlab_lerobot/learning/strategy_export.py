@@ -13,6 +13,8 @@ Layout (one frame = one cloud):
   out the last placement views of every TRAIN object: the validation set (``flatlab
   strategy-eval --select`` scores the checkpoints on exactly these episodes).
 * features: the chosen inputs (``--inputs``): ``observation.object_pointcloud`` (N, 3) float32,
+  centred and in metres (the set's unit-sphere cloud times its radius: the policy normalizes it
+  and reads its size),
   ``observation.scene_pointcloud`` (N, 3) float32 (ablation A-8, needs ``--extras scene`` in the
   set), ``observation.images.object`` (64, 64, 3) image (A-7, needs ``--extras rgb``); ``action``
   (3,) float32: the strategy one-hot (A, B, C); ``object_index`` (1,) int64: the base object.
@@ -62,6 +64,14 @@ def load_inputs(set_dir: Path, inputs) -> dict[str, np.ndarray]:
     return out
 
 
+def metric_clouds(arrays: dict, index) -> None:
+    """The object clouds back in metres (centred: the set's unit-sphere cloud times its
+    ``radius``), in place: the policy normalizes them itself and also reads their size."""
+    key = INPUTS["object"][0]
+    if key in arrays:
+        arrays[key] = (arrays[key] * index["radius"].to_numpy(np.float32)[:, None, None]).astype(np.float32)
+
+
 def check_train_only(index, set_dir) -> None:
     """Refuse a set holding any object outside the catalog's train split: by the set's own
     ``split`` column and by the catalog's split of every base object (Test-alpha / Test-beta
@@ -108,6 +118,7 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
     clouds, index, meta = load(set_dir)
     check_train_only(index, set_dir)
     arrays = load_inputs(set_dir, inputs)
+    metric_clouds(arrays, index)
     if points is not None:  # a seeded random subset of every cloud (smaller files, faster loading)
         rng = np.random.default_rng(seed)
         for key, arr in arrays.items():

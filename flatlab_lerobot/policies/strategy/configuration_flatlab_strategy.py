@@ -6,8 +6,12 @@ The policy maps one observation to 3 strategy logits (A, B, C):
 * input ``input_key`` only (default ``observation.object_pointcloud``: the object's cloud; ablation
   A-8: ``observation.scene_pointcloud``; A-7: ``observation.images.object``, an RGB crop).  A cloud
   is reduced to xyz (colour-free), ``n_points`` points are drawn, then it is centred on its mean and
-  scaled into the unit sphere inside the model, so a raw world-frame cloud from the env and a
-  pre-normalized one from the strategy set give the same input.  ``observation.environment_state``
+  scaled into the unit sphere inside the model (the paper's normalization), so the placement does
+  not matter.  With ``use_scale`` (default) the radius of that sphere (the object's size in m) is
+  embedded and appended to F: a uniform rescaling -- the paper's scale transformation -- gives the
+  same unit-sphere cloud yet may change the label (A <-> B), so without it those labels conflict.
+  Clouds must then be metric (the env's world-frame cloud; ``flatlab strategy-export`` writes
+  centred metric clouds).  ``observation.environment_state``
   is never read; ``validate_features`` keeps ``input_key`` as the only input feature.
 * encoder: PointNet (shared point-wise Conv1d + BatchNorm + ReLU per ``encoder_channels``, global
   max pool) -> feature F; for an image, a small CNN with the same channels and a global max pool.
@@ -68,6 +72,7 @@ class FlatLabStrategyConfig(PreTrainedConfig):
     temperature: float = 0.1  # tau
     contrast_negatives: str = "same_object"
     group_size: int = 4  # frames of one episode per sample (1: no object groups)
+    use_scale: bool = True  # also feed log(radius) of the cloud before normalization (its size in m)
     augment_yaw: bool = True  # random rotation about the vertical axis in training (clouds only)
     augment_jitter: float = 0.0  # std of Gaussian point jitter in training (unit-sphere units)
     # optimizer / scheduler presets (the paper: Adam 5e-4, wd 1e-4, x0.5 every 30 epochs)

@@ -17,11 +17,13 @@ from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import Fla
 STRATEGY_LETTERS = ("A", "B", "C")
 
 
-def normalize_cloud(cloud: Tensor) -> Tensor:
-    """(..., N, 3): centred on the mean, divided by the largest point norm (unit sphere)."""
+def normalize_cloud(cloud: Tensor, return_radius: bool = False):
+    """(..., N, 3): centred on the mean, divided by the largest point norm (unit sphere); with
+    ``return_radius`` also that norm (..., ) in the cloud's units."""
     c = cloud - cloud.mean(dim=-2, keepdim=True)
     r = c.norm(dim=-1).amax(dim=-1, keepdim=True).clamp_min(1e-8)
-    return c / r.unsqueeze(-1)
+    out = c / r.unsqueeze(-1)
+    return (out, r.squeeze(-1)) if return_radius else out
 
 
 class PointNetEncoder(nn.Module):
@@ -90,6 +92,10 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         ch = [int(c) for c in config.encoder_channels]
         self.encoder = ImageEncoder(ch) if config.is_image else PointNetEncoder(ch)
         d = self.encoder.out_dim
+        self.scale_embed = None
+        if config.use_scale and not config.is_image:
+            self.scale_embed = nn.Sequential(nn.Linear(1, 16), nn.ReLU(inplace=True))
+            d += 16
         self.head = nn.Sequential(
             nn.Linear(d, config.head_hidden), nn.ReLU(inplace=True), nn.Dropout(config.dropout),
             nn.Linear(config.head_hidden, len(STRATEGY_LETTERS)),
@@ -112,11 +118,12 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return list(self._strategies)
 
     # ------------------------------------------------------------------ inputs
-    def _prepare(self, x: Tensor, train: bool) -> Tensor:
-        """A batch of one input (B, N, C>=3) cloud or (B, 3, H, W) image -> the encoder's input."""
+    def _prepare(self, x: Tensor, train: bool) -> tuple[Tensor, Tensor | None]:
+        """A batch of one input (B, N, C>=3) cloud or (B, 3, H, W) image -> (the encoder's input,
+        the cloud's radius before normalization (B,) or None)."""
         cfg = self.config
         if cfg.is_image:
-            return x.float()
+            return x.float(), None
         x = x[..., :3].float()  # colour-free
         n = x.shape[1]
         if train:
@@ -129,7 +136,7 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             idx = torch.randperm(n, generator=g)[: cfg.n_points] if n >= cfg.n_points else (
                 torch.randint(0, n, (cfg.n_points,), generator=g))  # fmt: skip
             x = x[:, idx.to(x.device)]
-        x = normalize_cloud(x)
+        x, radius = normalize_cloud(x, return_radius=True)
         if train and cfg.augment_yaw:
             a = torch.rand(x.shape[0], device=x.device) * 2 * math.pi
             c, s = torch.cos(a), torch.sin(a)
@@ -138,7 +145,7 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             x = torch.cat([xy, x[..., 2:]], dim=-1)
         if train and cfg.augment_jitter > 0:
             x = x + cfg.augment_jitter * torch.randn_like(x)
-        return x
+        return x, radius
 
     def _input(self, batch: dict[str, Tensor]) -> Tensor:
         key = self.config.input_key
@@ -147,7 +154,14 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return batch[key]
 
     def features(self, x: Tensor, train: bool = False) -> Tensor:
-        return self.encoder(self._prepare(x, train))
+        """F: the encoder's global feature, with the embedded log-radius (metres) of the cloud
+        when ``use_scale`` (the unit-sphere normalization removes the object's size, which
+        decides A vs B for a rescaled object)."""
+        x, radius = self._prepare(x, train)
+        f = self.encoder(x)
+        if self.scale_embed is not None:
+            f = torch.cat([f, self.scale_embed(torch.log(radius)[:, None])], dim=1)
+        return f
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
