@@ -20,6 +20,7 @@ export_if $L/strategy_lerobot_cpu --points 512
 export_if $L/strategy_lerobot_cpu_orig --points 512 --originals-only
 export_if $L/strategy_lerobot_cpu_scene --inputs scene --points 512
 export_if $L/strategy_lerobot_cpu_rgb --inputs rgb
+export_if $L/strategy_lerobot_cpu_nocp --points 512 --no-counterparts
 RECIPES=${*:-cpu ablation_A1 ablation_A2 ablation_A3 ablation_A7 ablation_A8}
 mkdir -p docs/results
 for r in $RECIPES; do

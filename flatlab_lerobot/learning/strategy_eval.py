@@ -229,6 +229,34 @@ def ambiguity(set_dir: Path, n_points: int = 256) -> dict:
             "frac_rigid_closer_than_own_view": round(float((df.cloth_vs_rigid < df.cloth_vs_own_other_view).mean()), 3)}
 
 
+# ------------------------------------------------------------------------------ summary
+PAPER = {"cpu": (99.2, 91.3, 78.6), "paper": (99.2, 91.3, 78.6), "ablation_A1": (97.1, 88.0, 77.3),
+         "ablation_A2": (99.2, 91.3, 71.4), "ablation_A3": (99.2, 90.7, 70.5), "ablation_A7": (94.8, 82.3, 56.4),
+         "ablation_A8": (85.7, 79.3, 70.5)}  # fmt: skip
+"""Table 2 of the paper (Train / Test-alpha / Test-beta strategy accuracy, %): Full and A-1..A-8."""
+
+
+def summarize(paths) -> str:
+    """A markdown table of ``strategy_<recipe>.json`` results beside the paper's numbers."""
+    lines = ["| recipe | train wall (s) | selected step | val acc | Train (catalog / paper label) | Test-α | Test-β | "
+             "paper Train / α / β |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for p in paths:
+        d = json.loads(Path(p).read_text())
+        name = Path(p).stem.removeprefix("strategy_")
+        ps = d.get("per_split", {})
+
+        def cell(split, ps=ps):
+            m = ps.get(split)
+            return "-" if m is None else f"{m['acc_catalog']} / {m['acc_paper']}"
+
+        sel = d.get("selection") or {}
+        val = (sel.get("scores") or {}).get(sel.get("selected"), {}).get("val_acc")
+        wall = (d.get("training") or {}).get("train_wall_s")
+        lines.append(f"| {name} | {wall} | {sel.get('selected')} | {val} | {cell('train')} | {cell('test_alpha')} | "
+                     f"{cell('test_beta')} | {' / '.join(map(str, PAPER.get(name, ())))} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
 # ------------------------------------------------------------------------------ CLI
 def _git_commit() -> str | None:
     try:
@@ -247,7 +275,14 @@ def main(argv=None) -> int:
     ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the recipe)")
     ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
                     "copied into the result as 'training'")
+    ap.add_argument("--summarize", nargs="+", type=Path, help="result JSONs: print a markdown table and exit")
     args = ap.parse_args(argv)
+    if args.summarize:
+        text = summarize(args.summarize)
+        if args.out:
+            args.out.write_text(text)
+        print(text, end="")
+        return 0
     if not (args.policy or args.ambiguity):
         ap.error("give --policy (with --set) and/or --ambiguity")
     if args.policy and not args.set:

@@ -108,7 +108,8 @@ def episode_plan(index, seed: int = 0) -> list[tuple[str, int, list[int]]]:
 
 
 def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = False, seed: int = 0,
-           repo_id: str = "local/flatlab_strategy", points: int | None = None) -> dict:  # fmt: skip
+           repo_id: str = "local/flatlab_strategy", points: int | None = None,
+           counterparts: bool = True) -> dict:  # fmt: skip
     """Write the LeRobotDataset; returns a summary dict."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -129,6 +130,8 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
                 arrays[key] = np.take_along_axis(arr, idx[..., None], axis=1)
     if originals_only:
         index = index[index["transform"] == "original"]
+    if not counterparts:  # no rigid counterparts of the cloths (the material transformation)
+        index = index[~index["rigid_counterpart"].astype(bool)]
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"--out: {out} exists; remove it first")
@@ -161,7 +164,7 @@ def export(set_dir: Path, out: Path, inputs=("object",), originals_only: bool = 
     pd.DataFrame(frames).to_parquet(tmp / FRAMES_FILE, index=False)
     summary = {
         "set": str(set_dir), "inputs": list(inputs), "originals_only": originals_only, "seed": seed,
-        "points": points, "n_frames": len(frames), "n_episodes": len(plan), "n_objects": len(base_ids),
+        "points": points, "counterparts": counterparts, "n_frames": len(frames), "n_episodes": len(plan), "n_objects": len(base_ids),
         "views": sorted({v for _, v, _ in plan}), "set_meta_seed": meta.get("seed"),
         "export_seconds": round(time.perf_counter() - t0, 1),
     }  # fmt: skip
@@ -179,6 +182,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="LeRobotDataset root to write (must not exist)")
     ap.add_argument("--inputs", default="object", help=f"comma-separated inputs among {list(INPUTS)} (default: object)")
     ap.add_argument("--originals-only", action="store_true", help="no transformed variants (ablations A-2 / A-3)")
+    ap.add_argument("--no-counterparts", action="store_true", help="drop the cloths' rigid counterparts")
     ap.add_argument("--seed", type=int, default=0, help="seed of the frame order within an episode")
     ap.add_argument("--points", type=int, default=None, help="keep a seeded random subset of N points per cloud")
     args = ap.parse_args(argv)
@@ -188,7 +192,8 @@ def main(argv=None) -> int:
     try:
         if args.points is not None and args.points < 1:
             raise ValueError(f"--points: must be >= 1, got {args.points}")
-        summary = export(args.set, args.out, inputs, args.originals_only, args.seed, points=args.points)
+        summary = export(args.set, args.out, inputs, args.originals_only, args.seed, points=args.points,
+                         counterparts=not args.no_counterparts)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         ap.error(str(exc))
     print(f"strategy export: {summary['n_frames']} frames in {summary['n_episodes']} episodes "
