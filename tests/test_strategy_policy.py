@@ -281,3 +281,21 @@ def test_lerobot_train_cli_trains_and_checkpoint_reloads(exported, tmp_path):
     d = json.loads(res.read_text())
     assert d["per_split"]["train"]["n"] == 24 and np.sum(d["confusion_catalog"]) == 24
     assert d["machine"] == "2 CPU cores, no GPU" and d["selection"]["selected"] in {"000004", "000008"}
+
+
+def test_chamfer_yaw_ignores_placement_yaw_not_shape():
+    rng = np.random.default_rng(3)
+    plate = _cloud("A", rng, 200, 1.0)
+    t = np.deg2rad(40.0)  # a multiple of the 10-degree yaw grid
+    rot = plate @ np.array([[np.cos(t), np.sin(t), 0], [-np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    assert E.chamfer_yaw(plate, rot) < 1e-6
+    assert E.chamfer_yaw(plate, _cloud("B", rng, 200, 1.0)) > 0.05
+
+
+def test_summarize_puts_results_beside_the_paper(tmp_path):
+    res = {"per_split": {s: {"acc_catalog": 90.0, "acc_paper": 91.0} for s in E.SPLITS},
+           "selection": {"selected": "000100", "scores": {"000100": {"val_acc": 95.0}}}, "training": {"train_wall_s": 12}}
+    p = tmp_path / "strategy_ablation_A1.json"
+    p.write_text(json.dumps(res))
+    row = E.summarize([p]).splitlines()[2]
+    assert row.startswith("| ablation_A1 | 12 | 000100 | 95.0 | 90.0 / 91.0 |") and row.endswith("| 97.1 / 88.0 / 77.3 |")
