@@ -299,3 +299,17 @@ def test_summarize_puts_results_beside_the_paper(tmp_path):
     p.write_text(json.dumps(res))
     row = E.summarize([p]).splitlines()[2]
     assert row.startswith("| ablation_A1 | 12 | 000100 | 95.0 | 90.0 / 91.0 |") and row.endswith("| 97.1 / 88.0 / 77.3 |")
+
+
+def test_strategy_set_extras_for_ablations(tmp_path):
+    """``--extras scene,rgb``: per cloud, a unit-sphere scene cloud (A-8) and the object's RGB crop (A-7)."""
+    cfg = S.SetConfig(objects=("box_gift",), n_scales=0, views=2, image_size=128, settle=0.2, n_points=256,
+                      extras=("scene", "rgb"))  # fmt: skip
+    S.build(cfg, tmp_path / "set", workers=1, progress=False)
+    clouds = np.load(tmp_path / "set" / "clouds.npy")
+    scene, rgb = np.load(tmp_path / "set" / "scene_clouds.npy"), np.load(tmp_path / "set" / "rgb.npy")
+    assert scene.shape == clouds.shape == (2, 256, 3) and rgb.shape == (2, S.RGB_SIZE, S.RGB_SIZE, 3)
+    assert np.allclose(np.linalg.norm(scene, axis=2).max(1), 1.0, atol=1e-5)
+    assert rgb.dtype == np.uint8 and 0.2 < (rgb.max(-1) > 0).mean() < 1.0  # the object, on black
+    with pytest.raises(SystemExit):
+        S.main(["--extras", "depth"])
