@@ -1,5 +1,5 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
-``strategy-set``, ``primitive-set``, ``bench-collect``."""
+``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``."""
 
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ PASSTHROUGH = {
     "strategy-set": "flatlab_lerobot.learning.strategy_set",
     "primitive-set": "flatlab_lerobot.learning.primitive_set",
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
+    "strategy-export": "flatlab_lerobot.learning.strategy_export",
+    "strategy-eval": "flatlab_lerobot.learning.strategy_eval",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -50,6 +52,8 @@ def main(argv=None) -> int:
         ("strategy-set", "the strategy generator's learning set: normalized object clouds + strategy labels"),
         ("primitive-set", "the action module's learning set: scene cloud at each primitive start + start/end poses"),
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
+        ("strategy-export", "a strategy set as a LeRobotDataset v3 for lerobot-train --policy.type=flatlab_strategy"),
+        ("strategy-eval", "learned strategy generator: accuracy per split / category, confusion, cloud ambiguity"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)

@@ -90,6 +90,12 @@ class SetConfig:
     settle: float = 0.5
     n_points: int = 2048
     limit: int | None = None
+    extras: tuple[str, ...] = ()  # "scene": scene_clouds.npy; "rgb": rgb.npy (ablations A-8 / A-7)
+
+
+EXTRAS = ("scene", "rgb")
+RGB_SIZE = 64  # px: the object's RGB crop (ablation A-7)
+RGB_CAMERA = "top"
 
 
 # ------------------------------------------------------------------------------ plan
@@ -177,6 +183,37 @@ def _object_cloud(sim, rigs: dict, cfg: SetConfig) -> tuple[np.ndarray, int]:
         size *= 2
 
 
+def _extras(sim, rigs: dict, cfg: SetConfig, rng: np.random.Generator) -> dict:
+    """The opt-in extra views of one placement: ``scene`` (the whole scene cloud of ``cfg.cameras``
+    cropped to the workspace above the table, resampled and normalized like the object cloud) and
+    ``rgb`` (the object's pixels in the ``top`` camera, background black, cropped to a square
+    around the object and resized to RGB_SIZE px, uint8)."""
+    from flatlab_lerobot.sim.cameras import crop
+
+    out = {}
+    rig = rigs[cfg.image_size]
+    if "scene" in cfg.extras:
+        tx, ty = sim.cell.table_size
+        h = sim.cell.table_height
+        pts = crop(rig.scene_points(sim.data), [-tx / 2, -ty / 2, h - 0.005], [tx / 2 + 0.15, ty / 2, h + 0.6])
+        out["scene"] = normalize(resample(pts, cfg.n_points, rng))[0]
+    if "rgb" in cfg.extras:
+        fr = rig.capture(sim.data, RGB_CAMERA, segmentation=True, rgb=True)
+        mask = rig.object_mask(fr.seg, sim.obj_geoms, sim.flex_id)
+        img = np.where(mask[..., None], fr.rgb, 0).astype(np.uint8)
+        ys, xs = np.nonzero(mask)
+        if len(ys):
+            cy, cx = (ys.min() + ys.max()) / 2, (xs.min() + xs.max()) / 2
+            half = max(ys.max() - ys.min(), xs.max() - xs.min()) / 2 + 1
+        else:
+            cy = cx = half = mask.shape[0] / 2
+        grid = (np.arange(RGB_SIZE) + 0.5) / RGB_SIZE * 2 - 1
+        yy = np.clip(np.round(cy + grid * half).astype(int), 0, mask.shape[0] - 1)
+        xx = np.clip(np.round(cx + grid * half).astype(int), 0, mask.shape[1] - 1)
+        out["rgb"] = img[yy][:, xx]
+    return out
+
+
 def capture_variant(variant, cfg: SetConfig) -> tuple[np.ndarray, list[dict]]:
     """Clouds ((views, n_points, 3) float32) and index rows of one variant: one fresh simulation,
     ``cfg.views`` placements."""
@@ -188,6 +225,7 @@ def capture_variant(variant, cfg: SetConfig) -> tuple[np.ndarray, list[dict]]:
     sim = FlatLabSim(spec)
     rigs: dict = {}
     clouds, rows = [], []
+    extras: dict = {k: [] for k in cfg.extras}
     try:
         for view in range(cfg.views):
             seed = view_seed(cfg.seed, spec.id, view)
@@ -204,6 +242,8 @@ def capture_variant(variant, cfg: SetConfig) -> tuple[np.ndarray, list[dict]]:
                 raise RuntimeError(f"object '{spec.id}' view {view}: not seen by cameras {list(cfg.cameras)}")
             rng = np.random.default_rng(seed)
             cloud, centre, radius = normalize(resample(raw, cfg.n_points, rng))
+            for k, v in _extras(sim, rigs, cfg, rng).items():
+                extras[k].append(v)
             strategy = variant.strategy
             clouds.append(cloud)
             rows.append({
@@ -221,6 +261,8 @@ def capture_variant(variant, cfg: SetConfig) -> tuple[np.ndarray, list[dict]]:
     finally:
         for rig in rigs.values():
             rig.close()
+    if cfg.extras:
+        rows[0]["_extras"] = {k: np.stack(v) for k, v in extras.items()}
     return np.stack(clouds), rows
 
 
@@ -320,13 +362,21 @@ def build(cfg: SetConfig, out: Path, workers: int = 2, progress: bool = True) ->
         bar.close()
     clouds = np.concatenate([c for c, _ in results]).astype(np.float32)
     rows = [row for _, r in results for row in r]
+    extras = {}
+    for k in cfg.extras:
+        extras[k] = np.concatenate([r[0]["_extras"][k] for _, r in results])
+    for row in rows:
+        row.pop("_extras", None)
     index = pd.DataFrame(rows)
     meta = _meta(cfg, bases, index, time.perf_counter() - t0, workers)
-    _write_atomic(Path(out), clouds, index, meta)
+    _write_atomic(Path(out), clouds, index, meta, extras)
     return meta
 
 
-def _write_atomic(out: Path, clouds: np.ndarray, index, meta: dict) -> None:
+EXTRA_FILES = {"scene": "scene_clouds.npy", "rgb": "rgb.npy"}
+
+
+def _write_atomic(out: Path, clouds: np.ndarray, index, meta: dict, extras: dict | None = None) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
     old = out.parent / f".{out.name}.old-{os.getpid()}"
@@ -334,6 +384,8 @@ def _write_atomic(out: Path, clouds: np.ndarray, index, meta: dict) -> None:
     tmp.mkdir()
     try:
         np.save(tmp / "clouds.npy", clouds)
+        for k, arr in (extras or {}).items():
+            np.save(tmp / EXTRA_FILES[k], arr)
         index.to_parquet(tmp / "index.parquet", index=False)
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
         if out.exists():
@@ -389,6 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--points", type=int_at_least(1), default=2048, help="points per cloud (default 2048)")
     ap.add_argument("--workers", type=int_at_least(1), default=2, help="worker processes (default 2)")
     ap.add_argument("--limit", type=int_at_least(1), default=None, help="build only the first N variants")
+    ap.add_argument("--extras", default="", help="comma-separated extra views per cloud: scene (scene_clouds.npy), "
+                    "rgb (rgb.npy, the object's 64-px top-camera crop); for ablations A-8 / A-7")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
@@ -403,12 +457,16 @@ def config_from_args(args) -> SetConfig:
     bad = [c for c in cams if c not in CAMERA_NAMES]
     if bad or not cams:
         raise ValueError(f"--cameras: unknown camera(s) {bad or cams}; known: {list(CAMERA_NAMES)}")
+    extras = tuple(e.strip() for e in args.extras.split(",") if e.strip())
+    if any(e not in EXTRAS for e in extras):
+        raise ValueError(f"--extras: unknown extra(s) {[e for e in extras if e not in EXTRAS]}; known: {list(EXTRAS)}")
     if not (0.0 <= args.settle <= 10.0):
         raise ValueError(f"--settle: must be in [0, 10] s, got {args.settle}")
     return SetConfig(
         splits=splits, objects=tuple(o.strip() for o in args.objects.split(",") if o.strip()),
         n_scales=args.scales, counterparts=not args.no_counterparts, views=args.views, seed=args.seed,
         cameras=cams, image_size=args.image_size, settle=args.settle, n_points=args.points, limit=args.limit,
+        extras=extras,
     )  # fmt: skip
 
 

@@ -1,0 +1,332 @@
+"""``flatlab strategy-eval``: the learned strategy generator (``flatlab_strategy``) judged on the
+benchmark objects.
+
+* ``--policy`` is a ``pretrained_model`` folder, or a ``lerobot-train`` output folder: then every
+  saved checkpoint is scored on the **validation** episodes of its training dataset (lerobot's
+  ``--dataset.eval_split`` hold-out: the last placement views of the TRAIN objects, see
+  ``flatlab strategy-export``) and the best (validation accuracy, then validation cross-entropy,
+  then the later step) is used.  Test-alpha / Test-beta clouds play no part in the choice.
+* ``--set`` is a strategy set of the benchmark objects in fresh placements, built with a seed
+  disjoint from the training set's (``flatlab strategy-set --splits all --scales 0
+  --no-counterparts --views 3 --seed 1000``).  Reported: accuracy per split and per category
+  against the grounded catalog label (``catalog_strategy``) and against the paper's label, and
+  the 3x3 confusion matrix (rows: catalog label, columns: prediction) per split.
+* ``--ambiguity SET``: how far a cloth's cloud is from its rigid counterpart's, against how far two
+  placements of one object are (yaw-aligned chamfer distance on the normalized clouds).
+
+Writes a JSON (``--out``) with the metrics, the command, seeds, wall time, machine and git commit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+LETTERS = ("A", "B", "C")
+SPLITS = ("train", "test_alpha", "test_beta")
+MACHINE = "2 CPU cores, no GPU"
+
+
+# ------------------------------------------------------------------------------ policy
+def load_policy(path: Path):
+    """A ``flatlab_strategy`` policy from a ``pretrained_model`` folder, in eval mode on the CPU."""
+    import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy type
+    from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
+
+    path = Path(path)
+    if not (path / "config.json").is_file() or not (path / "model.safetensors").is_file():
+        raise FileNotFoundError(f"--policy: {path} is not a pretrained_model folder (config.json + model.safetensors)")
+    cfg = json.loads((path / "config.json").read_text())
+    if cfg.get("type") != "flatlab_strategy":
+        raise ValueError(f"--policy: {path}/config.json is a {cfg.get('type')!r} policy, not flatlab_strategy")
+    policy = FlatLabStrategyPolicy.from_pretrained(str(path))
+    policy.config.device = "cpu"
+    return policy.to("cpu").eval()
+
+
+def set_inputs(policy, set_dir: Path) -> np.ndarray:
+    """The policy's input for every row of a strategy set (clouds, or RGB crops as (3, H, W) floats)."""
+    from flatlab_lerobot.learning.strategy_export import INPUTS, load_inputs
+
+    from flatlab_lerobot.learning.strategy_export import metric_clouds
+    from flatlab_lerobot.learning.strategy_set import load
+
+    name = next((n for n, (k, _) in INPUTS.items() if k == policy.config.input_key), None)
+    arrays = load_inputs(set_dir, [name])
+    metric_clouds(arrays, load(set_dir)[1])
+    arr = arrays[policy.config.input_key]
+    if policy.config.is_image:
+        arr = arr.transpose(0, 3, 1, 2).astype(np.float32) / 255.0
+    return arr
+
+
+def predict(policy, x: np.ndarray, batch: int = 64) -> np.ndarray:
+    """(N, 3) logits."""
+    import torch
+
+    key, out = policy.config.input_key, []
+    with torch.no_grad():
+        for i in range(0, len(x), batch):
+            out.append(policy.predict_logits({key: torch.as_tensor(x[i : i + batch])}).numpy())
+    return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
+
+
+# ------------------------------------------------------------------------------ metrics
+def confusion(true, pred) -> list[list[int]]:
+    m = np.zeros((3, 3), int)
+    for t, p in zip(true, pred, strict=True):
+        m[LETTERS.index(t), LETTERS.index(p)] += 1
+    return m.tolist()
+
+
+def _acc(true, pred) -> float | None:
+    true, pred = np.asarray(true), np.asarray(pred)
+    return None if len(true) == 0 else round(float((true == pred).mean()) * 100, 2)
+
+
+def metrics(index, pred: list[str]) -> dict:
+    """Accuracy per split / category (catalog and paper labels) and confusion matrices."""
+    from flatlab_lerobot.catalog import load_objects
+
+    catalog = load_objects()
+    idx = index.reset_index(drop=True).copy()
+    idx["pred"] = list(pred)
+    idx["paper_strategy"] = [catalog[b].paper_strategy for b in idx.base_object_id]
+    out = {"n": len(idx), "per_split": {}, "per_category": {}, "per_object": {}}
+    for split in [s for s in SPLITS if s in set(idx.split)]:
+        d = idx[idx.split == split]
+        out["per_split"][split] = {
+            "n": len(d), "n_objects": int(d.base_object_id.nunique()),
+            "acc_catalog": _acc(d.catalog_strategy, d.pred), "acc_paper": _acc(d.paper_strategy, d.pred),
+            "confusion_catalog": confusion(d.catalog_strategy, d.pred),
+        }  # fmt: skip
+        for cat, c in d.groupby("category"):
+            out["per_category"][f"{split}/{cat}"] = {
+                "n": len(c), "catalog_labels": "".join(sorted(set(c.catalog_strategy))),
+                "acc_catalog": _acc(c.catalog_strategy, c.pred), "acc_paper": _acc(c.paper_strategy, c.pred),
+                "pred": dict(sorted(c.pred.value_counts().items())),
+            }  # fmt: skip
+    for obj, o in idx.groupby("base_object_id"):
+        out["per_object"][obj] = {"catalog": o.catalog_strategy.iloc[0], "paper": o.paper_strategy.iloc[0],
+                                  "pred": "".join(o.pred)}  # fmt: skip
+    out["confusion_catalog"] = confusion(idx.catalog_strategy, idx.pred)
+    return out
+
+
+# ------------------------------------------------------------------------------ selection
+def validation_episodes(dataset_root: Path, eval_split: float) -> list[int]:
+    """lerobot's hold-out (``make_train_eval_datasets``): per task, its last ceil(n * f) episodes."""
+    import pandas as pd
+
+    frames = pd.read_parquet(Path(dataset_root) / "meta" / "flatlab_strategy_frames.parquet")
+    eps = frames.groupby("episode_index").base_object_id.first()
+    out = []
+    for _task, e in eps.groupby(eps):
+        ids = sorted(e.index)
+        n = math.ceil(len(ids) * eval_split)
+        out += ids[len(ids) - n :] if n else []
+    return sorted(out)
+
+
+def validation_data(dataset_root: Path, eval_split: float, input_key: str):
+    """(inputs, labels 0..2) of the validation frames, read from the LeRobotDataset itself."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    eps = validation_episodes(dataset_root, eval_split)
+    if not eps:
+        raise ValueError(f"{dataset_root}: no validation episodes (train with --dataset.eval_split > 0)")
+    ds = LeRobotDataset("local/flatlab_strategy", root=dataset_root, episodes=eps, video_backend="pyav")
+    xs, ys = [], []
+    for i in range(len(ds)):
+        item = ds[i]
+        xs.append(item[input_key].numpy())
+        ys.append(int(item["action"].argmax()))
+    return np.stack(xs).astype(np.float32), np.array(ys)
+
+
+def select_checkpoint(train_dir: Path) -> tuple[Path, dict]:
+    """(best pretrained_model folder, the scores of every checkpoint) by validation accuracy."""
+    ckpts = sorted(p for p in (Path(train_dir) / "checkpoints").glob("[0-9]*") if (p / "pretrained_model").is_dir())
+    if not ckpts:
+        raise FileNotFoundError(f"--policy: {train_dir}/checkpoints has no saved step (lerobot-train output?)")
+    tc = json.loads((ckpts[-1] / "pretrained_model" / "train_config.json").read_text())
+    root, split = tc["dataset"]["root"], float(tc["dataset"].get("eval_split") or 0.0)
+    first = load_policy(ckpts[-1] / "pretrained_model")
+    x, y = validation_data(Path(root), split, first.config.input_key)
+    scores = {}
+    for c in ckpts:
+        pol = load_policy(c / "pretrained_model")
+        logits = predict(pol, x)
+        logp = logits - np.log(np.exp(logits - logits.max(1, keepdims=True)).sum(1, keepdims=True)) - logits.max(1, keepdims=True)
+        scores[c.name] = {"val_acc": round(float((logits.argmax(1) == y).mean()) * 100, 2),
+                          "val_ce": round(float(-logp[np.arange(len(y)), y].mean()), 4)}  # fmt: skip
+    best = max(scores, key=lambda k: (scores[k]["val_acc"], -scores[k]["val_ce"], int(k)))
+    return ckpts[[c.name for c in ckpts].index(best)] / "pretrained_model", {
+        "dataset_root": root, "eval_split": split, "n_val": len(y), "scores": scores, "selected": best}
+
+
+# ------------------------------------------------------------------------------ ambiguity
+def chamfer_yaw(a: np.ndarray, b: np.ndarray, n_yaw: int = 36) -> float:
+    """Symmetric chamfer distance between two normalized clouds, minimized over rotations of
+    ``b`` about the vertical axis and its mirror image (placements differ in yaw)."""
+    best = math.inf
+    for mirror in (1.0, -1.0):
+        bb = b * np.array([1.0, mirror, 1.0])
+        for t in np.linspace(0, 2 * np.pi, n_yaw, endpoint=False):
+            c, s = math.cos(t), math.sin(t)
+            r = bb @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+            d = ((a[:, None, :] - r[None, :, :]) ** 2).sum(-1)
+            best = min(best, float(np.sqrt(d.min(1)).mean() + np.sqrt(d.min(0)).mean()) / 2)
+    return best
+
+
+def ambiguity(set_dir: Path, n_points: int = 256) -> dict:
+    """For every cloth variant in the (training) set: the distance of its cloud to its rigid
+    counterpart's (same outline, same scale) against the distance between two placements of the
+    cloth itself and to a different object of the same strategy."""
+    from flatlab_lerobot.learning.strategy_set import load
+
+    clouds, index, _ = load(set_dir)
+    sub = clouds[:, :: max(1, clouds.shape[1] // n_points)][:, :n_points].astype(np.float64)
+    cloth = index[(index.material != "rigid") & ~index.rigid_counterpart]
+    rows = []
+    for (oid, base), g in cloth.groupby(["object_id", "base_object_id"]):
+        rig = index[index.object_id == oid + "@rigid"]
+        views = list(g.index)
+        if not len(rig) or len(views) < 2:
+            continue
+        other = index[(index.strategy == "C") & (index.base_object_id != base)]
+        for k, i in enumerate(views[:2]):
+            j = views[(k + 1) % len(views)]
+            rows.append({
+                "object_id": oid, "category": g.category.iloc[0],
+                "cloth_vs_rigid": chamfer_yaw(sub[i], sub[rig.index[k % len(rig)]]),
+                "cloth_vs_own_other_view": chamfer_yaw(sub[i], sub[j]),
+                "cloth_vs_other_cloth": chamfer_yaw(sub[i], sub[other.index[k % len(other)]]) if len(other) else None,
+            })  # fmt: skip
+    if not rows:
+        raise ValueError(f"--ambiguity: {set_dir} has no cloth with a rigid counterpart and >= 2 views")
+    import pandas as pd
+
+    df = pd.DataFrame(rows)
+    def med(col):
+        v = col.dropna()
+        return round(float(v.median()), 4) if len(v) else None
+
+    summ = {c: med(df[c]) for c in ("cloth_vs_rigid", "cloth_vs_own_other_view", "cloth_vs_other_cloth")}
+    per_cat = {cat: {c: med(d[c]) for c in summ} for cat, d in df.groupby("category")}
+    return {"n_pairs": len(df), "n_points": n_points, "metric": "symmetric chamfer (unit-sphere clouds), min over yaw "
+            "and mirror", "median": summ, "per_category_median": per_cat,
+            "frac_rigid_closer_than_own_view": round(float((df.cloth_vs_rigid < df.cloth_vs_own_other_view).mean()), 3)}
+
+
+# ------------------------------------------------------------------------------ summary
+PAPER = {"cpu": (99.2, 91.3, 78.6), "paper": (99.2, 91.3, 78.6), "ablation_A1": (97.1, 88.0, 77.3),
+         "ablation_A2": (99.2, 91.3, 71.4), "ablation_A3": (99.2, 90.7, 70.5), "ablation_A7": (94.8, 82.3, 56.4),
+         "ablation_A8": (85.7, 79.3, 70.5)}  # fmt: skip
+"""Table 2 of the paper (Train / Test-alpha / Test-beta strategy accuracy, %): Full and A-1..A-8."""
+
+
+def summarize(paths) -> str:
+    """A markdown table of ``strategy_<recipe>.json`` results beside the paper's numbers."""
+    lines = ["| recipe | train wall (s) | selected step | val acc | Train (catalog / paper label) | Test-α | Test-β | "
+             "paper Train / α / β |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for p in paths:
+        d = json.loads(Path(p).read_text())
+        name = Path(p).stem.removeprefix("strategy_")
+        ps = d.get("per_split", {})
+
+        def cell(split, ps=ps):
+            m = ps.get(split)
+            return "-" if m is None else f"{m['acc_catalog']} / {m['acc_paper']}"
+
+        sel = d.get("selection") or {}
+        val = (sel.get("scores") or {}).get(sel.get("selected"), {}).get("val_acc")
+        wall = (d.get("training") or {}).get("train_wall_s")
+        lines.append(f"| {name} | {wall} | {sel.get('selected')} | {val} | {cell('train')} | {cell('test_alpha')} | "
+                     f"{cell('test_beta')} | {' / '.join(map(str, PAPER.get(name, ())))} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ CLI
+def _git_commit() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
+                              cwd=Path(__file__).resolve().parent).stdout.strip()  # fmt: skip
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="flatlab strategy-eval", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policy", type=Path, help="pretrained_model folder, or a lerobot-train output folder (select)")
+    ap.add_argument("--set", type=Path, help="strategy set of the benchmark objects in fresh placements")
+    ap.add_argument("--ambiguity", type=Path, help="strategy set with cloths and rigid counterparts: measure them")
+    ap.add_argument("--out", type=Path, help="JSON file to write")
+    ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the recipe)")
+    ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
+                    "copied into the result as 'training'")
+    ap.add_argument("--summarize", nargs="+", type=Path, help="result JSONs: print a markdown table and exit")
+    args = ap.parse_args(argv)
+    if args.summarize:
+        text = summarize(args.summarize)
+        if args.out:
+            args.out.write_text(text)
+        print(text, end="")
+        return 0
+    if not (args.policy or args.ambiguity):
+        ap.error("give --policy (with --set) and/or --ambiguity")
+    if args.policy and not args.set:
+        ap.error("--policy needs --set (the evaluation strategy set)")
+    t0 = time.perf_counter()
+    res: dict = {"command": "flatlab strategy-eval " + " ".join(sys.argv[1:] if argv is None else argv),
+                 "label": args.label}  # fmt: skip
+    try:
+        if args.policy:
+            from flatlab_lerobot.learning.strategy_set import load
+
+            path, sel = args.policy, None
+            if (args.policy / "checkpoints").is_dir():
+                path, sel = select_checkpoint(args.policy)
+            policy = load_policy(path)
+            _, index, meta = load(args.set)
+            logits = predict(policy, set_inputs(policy, args.set))
+            res.update({"policy": str(path), "selection": sel, "eval_set": str(args.set),
+                        "eval_set_seed": meta.get("seed"), "eval_set_views": meta["settings"].get("views"),
+                        **metrics(index, [LETTERS[i] for i in logits.argmax(1)])})  # fmt: skip
+            tc = path / "train_config.json"
+            if tc.is_file():
+                t = json.loads(tc.read_text())
+                res["train"] = {"seed": t.get("seed"), "steps": t.get("steps"), "batch_size": t.get("batch_size"),
+                                "dataset_root": t["dataset"].get("root")}  # fmt: skip
+        if args.train_wall:
+            res["training"] = json.loads(args.train_wall.read_text())
+        if args.ambiguity:
+            res["ambiguity"] = ambiguity(args.ambiguity)
+    except (FileNotFoundError, ValueError, KeyError, json.JSONDecodeError) as exc:
+        ap.error(str(exc))
+    res.update({"wall_s": round(time.perf_counter() - t0, 1), "machine": MACHINE, "git_commit": _git_commit(),
+                "python": platform.python_version(), "cpu_count": os.cpu_count()})  # fmt: skip
+    text = json.dumps(res, indent=1) + "\n"
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+    for split, m in res.get("per_split", {}).items():
+        print(f"{split:11s} n={m['n']:4d}  acc(catalog) {m['acc_catalog']}%  acc(paper) {m['acc_paper']}%  "
+              f"confusion {m['confusion_catalog']}")  # fmt: skip
+    if "ambiguity" in res:
+        print("ambiguity (median chamfer):", res["ambiguity"]["median"])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,15 @@
+"""Pre/post processors of ``flatlab_strategy``: rename -> batch -> device in, cpu out.  No
+(un)normalization step: the model centres and scales each cloud itself (unit sphere), images
+arrive in [0, 1], and the output is a probability vector."""
+
+from __future__ import annotations
+
+from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
+
+
+def make_flatlab_strategy_pre_post_processors(config, dataset_stats=None):
+    s = make_default_policy_processor_steps(config, None)
+    return make_policy_processor_pipelines(
+        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device],
+        output_steps=[s.to_cpu],
+    )

@@ -1,0 +1,315 @@
+"""``flatlab_strategy``: the learned strategy generator as a LeRobot policy, its export, loss,
+recipes, and training through the real ``lerobot-train`` CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy type
+from flatlab_lerobot.catalog import load_objects
+from flatlab_lerobot.learning import strategy_eval as E
+from flatlab_lerobot.learning import strategy_export as X
+from flatlab_lerobot.learning import strategy_set as S
+from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
+from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy, nt_xent
+
+REPO = Path(__file__).resolve().parents[1]
+RECIPES = sorted((REPO / "policies" / "flatlab_strategy").glob("*.json"))
+OBJECTS = load_objects()
+CLOUD_KEY = "observation.object_pointcloud"
+
+
+# ------------------------------------------------------------------------------ a synthetic set
+def _cloud(strategy: str, rng, n: int, scale: float) -> np.ndarray:
+    """A: a thin plate, B: a thick box, C: a wavy sheet (unit-sphere normalized)."""
+    p = rng.uniform(-1, 1, (n, 3)) * [scale, 0.7 * scale, 0.0]
+    if strategy == "B":
+        p[:, 2] = rng.uniform(0, 0.6 * scale, n)
+    elif strategy == "C":
+        p[:, 2] = 0.15 * scale * np.sin(4 * p[:, 0] / scale)
+    else:
+        p[:, 2] = rng.uniform(0, 0.02 * scale, n)
+    return S.normalize(p)[0]
+
+
+def synthetic_set(out: Path, objects=None, views: int = 3, n: int = 128, split_override=None) -> Path:
+    """A strategy set in the real file format with real catalog ids, without simulation: per
+    object 2 variants per view (the original and one 'scale' variant whose strategy differs for
+    the cloth: its rigid counterpart)."""
+    objects = objects or ["book_a5_notebook", "box_gift", "mousepad_standard", "fabric_cotton"]
+    rng = np.random.default_rng(0)
+    clouds, rows = [], []
+    for oid in objects:
+        o = OBJECTS[oid]
+        for view in range(views):
+            for variant, strat in (("original", o.strategy), ("rigid" if o.deformable else "scale", "A" if o.deformable else o.strategy)):
+                clouds.append(_cloud(strat, rng, n, 1.0 if variant == "original" else 0.7))
+                rows.append({"label": "ABC".index(strat), "strategy": strat, "label_source": "catalog",
+                             "catalog_strategy": o.strategy, "object_id": oid if variant == "original" else f"{oid}@{variant}",
+                             "base_object_id": oid, "category": o.category, "split": split_override or o.split,
+                             "material": "rigid" if variant == "rigid" else o.material, "transform": variant,
+                             "rigid_counterpart": variant == "rigid", "view": view, "seed": view,
+                             "radius": 0.2 if variant == "original" else 0.14})  # fmt: skip
+    clouds = np.stack(clouds).astype(np.float32)
+    extras = {"scene": clouds[:, ::-1].copy(), "rgb": rng.integers(0, 255, (len(clouds), 16, 16, 3), dtype=np.uint8)}
+    meta = {"n_clouds": len(clouds), "seed": 0, "settings": {"views": views}}
+    S._write_atomic(out, clouds, pd.DataFrame(rows), meta, extras)
+    return out
+
+
+def _policy(**kw) -> FlatLabStrategyPolicy:
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    cfg = FlatLabStrategyConfig(device="cpu", n_points=64, encoder_channels=[16, 32], **kw)
+    cfg.input_features = {
+        CLOUD_KEY: PolicyFeature(FeatureType.STATE, (128, 3)),
+        "observation.environment_state": PolicyFeature(FeatureType.ENV, (14,)),
+        "observation.state": PolicyFeature(FeatureType.STATE, (16,)),
+    }
+    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (3,))}
+    torch.manual_seed(0)
+    return FlatLabStrategyPolicy(cfg).eval()
+
+
+# ------------------------------------------------------------------------------ fast tests
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="input_key"):
+        FlatLabStrategyConfig(input_key="observation.environment_state")
+    with pytest.raises(ValueError, match="contrast_negatives"):
+        FlatLabStrategyConfig(contrast_negatives="nope")
+    with pytest.raises(ValueError, match="temperature"):
+        FlatLabStrategyConfig(temperature=0)
+    with pytest.raises(ValueError, match="encoder_channels"):
+        FlatLabStrategyConfig(encoder_channels=[])
+
+
+def test_policy_never_reads_environment_state():
+    """Only input_key survives validate_features, and the logits do not change when the
+    privileged state (or the robot state) is random, zeroed or absent."""
+    policy = _policy()
+    assert set(policy.config.input_features) == {CLOUD_KEY}
+    g = torch.Generator().manual_seed(1)
+    cloud = torch.randn(5, 128, 3, generator=g)
+    ref = policy.predict_logits({CLOUD_KEY: cloud})
+    for env in (torch.randn(5, 14, generator=g), torch.zeros(5, 14)):
+        batch = {CLOUD_KEY: cloud, "observation.environment_state": env, "observation.state": torch.randn(5, 16)}
+        assert torch.equal(policy.predict_logits(batch), ref)
+    probs = policy.select_action({CLOUD_KEY: cloud, "observation.environment_state": torch.ones(5, 14)})
+    assert torch.allclose(probs, ref.softmax(1)) and len(policy.strategies) == 5
+    assert set(policy.strategies) <= {"A", "B", "C"}
+    # sanity: the output does depend on its input
+    assert not torch.equal(policy.predict_logits({CLOUD_KEY: cloud * torch.tensor([1.0, 1.0, 5.0])}), ref)
+    with pytest.raises(KeyError, match="object_pointcloud"):
+        policy.predict_logits({"observation.environment_state": torch.zeros(1, 14)})
+
+
+def test_cloud_normalization_invariance():
+    """The placement (translation) never matters; the size does only through use_scale (the
+    unit-sphere normalization happens inside the model, as for the env's raw clouds)."""
+    cloud = torch.randn(2, 128, 3)
+    shift = torch.tensor([0.1, -0.2, 0.75])
+    for use_scale in (True, False):
+        policy = _policy(use_scale=use_scale)
+        a = policy.predict_logits({CLOUD_KEY: cloud})
+        assert torch.allclose(a, policy.predict_logits({CLOUD_KEY: cloud + shift}), atol=1e-4)
+        scaled = policy.predict_logits({CLOUD_KEY: cloud * 0.3 + shift})
+        assert torch.allclose(a, scaled, atol=1e-4) != use_scale
+
+
+def test_nt_xent_matches_formula():
+    z = torch.nn.functional.normalize(torch.randn(6, 4, generator=torch.Generator().manual_seed(0)), dim=1)
+    labels = torch.tensor([0, 2, 0, 2, 1, 0])
+    objects = torch.tensor([0, 0, 1, 1, 2, 3])
+    tau = 0.5
+    got = nt_xent(z, labels, objects, tau)
+    s = (z @ z.T / tau).numpy()
+    terms = []
+    for i in range(6):
+        pos = [j for j in range(6) if labels[j] == labels[i] and objects[j] != objects[i]]
+        neg = [j for j in range(6) if labels[j] != labels[i] and objects[j] == objects[i]]
+        if pos and neg:
+            terms += [-s[i, p] + np.log(np.exp(s[i, p]) + np.exp(s[i, neg]).sum()) for p in pos]
+    assert len(terms) == 6 and np.isclose(float(got), np.mean(terms), atol=1e-5)
+    # no same-object negatives: the paper's term vanishes; "other_strategy" negatives do not
+    assert float(nt_xent(z, labels, torch.arange(6), tau)) == 0.0
+    assert float(nt_xent(z, labels, torch.arange(6), tau, "other_strategy")) > 0.0
+
+
+def test_forward_masks_padding_and_learns_groups():
+    policy = _policy(group_size=2).train()
+    b = {CLOUD_KEY: torch.randn(4, 2, 128, 3), "action": torch.eye(3)[torch.tensor([[0, 2], [1, 1], [2, 0], [0, 0]])],
+         f"{CLOUD_KEY}_is_pad": torch.tensor([[False, False], [False, True], [False, False], [False, False]]),
+         "object_index": torch.tensor([0, 1, 2, 3])}  # fmt: skip
+    loss, info = policy.forward(b)
+    assert torch.isfinite(loss) and {"ce", "acc", "nt_xent"} <= set(info)
+    loss.backward()
+    assert all(p.grad is not None for p in policy.encoder.parameters())
+
+
+@pytest.mark.parametrize("recipe", RECIPES, ids=lambda p: p.stem)
+def test_recipes_parse_as_lerobot_train_configs(recipe):
+    import draccus
+    from lerobot.configs.train import TrainPipelineConfig
+
+    cfg = draccus.parse(TrainPipelineConfig, config_path=str(recipe), args=["--output_dir=/tmp/never_written"])
+    assert cfg.policy.type == "flatlab_strategy" and cfg.dataset.eval_split > 0 and cfg.num_workers == 0
+    p = cfg.policy
+    assert p.get_optimizer_preset().lr == p.optimizer_lr and p.get_scheduler_preset().gamma == 0.5
+    raw = json.loads(recipe.read_text())
+    for k, v in raw["policy"].items():
+        if k != "type":
+            assert getattr(p, k) == v, (recipe.name, k)
+    if recipe.stem == "paper":  # App. B: 2048 points, Adam 5e-4 / wd 1e-4, batch 32, x0.5 every 30 of 150 epochs
+        assert (p.n_points, p.optimizer_lr, p.optimizer_weight_decay, cfg.batch_size) == (2048, 5e-4, 1e-4, 32)
+        assert cfg.steps == 5 * p.scheduler_step_size
+    names = {r.stem for r in RECIPES}
+    assert {"cpu", "paper", "ablation_A1", "ablation_A2", "ablation_A3", "ablation_A7", "ablation_A8"} <= names
+
+
+def test_ablation_recipes_differ_from_cpu_only_as_the_paper_says():
+    cpu = json.loads((REPO / "policies/flatlab_strategy/cpu.json").read_text())
+
+    def diff(name):
+        r = json.loads((REPO / f"policies/flatlab_strategy/ablation_{name}.json").read_text())
+        d = {f"policy.{k}": v for k, v in r["policy"].items() if cpu["policy"].get(k) != v}
+        d.update({f"dataset.{k}": v for k, v in r["dataset"].items() if cpu["dataset"].get(k) != v})
+        d.update({k: v for k, v in r.items() if k not in ("policy", "dataset") and cpu.get(k) != v})
+        return d
+
+    assert diff("A1") == {"policy.contrast_weight": 0.0}
+    assert set(diff("A2")) == {"dataset.root"} and diff("A2")["dataset.root"].endswith("_orig")
+    assert set(diff("A3")) == {"dataset.root", "policy.contrast_weight"}
+    assert diff("A7")["policy.input_key"] == "observation.images.object"
+    assert diff("A8")["policy.input_key"] == "observation.scene_pointcloud"
+
+
+def test_export_refuses_test_objects(tmp_path):
+    s = synthetic_set(tmp_path / "set", objects=["book_a5_notebook", next(o for o in OBJECTS if OBJECTS[o].split == "test_alpha")])
+    with pytest.raises(ValueError, match="non-train"):
+        X.export(s, tmp_path / "lr")
+    # a lying 'split' column does not help: the catalog's split is checked too
+    s2 = synthetic_set(tmp_path / "set2", objects=[next(o for o in OBJECTS if OBJECTS[o].split == "test_beta")],
+                       split_override="train")  # fmt: skip
+    with pytest.raises(ValueError, match="non-train"):
+        X.export(s2, tmp_path / "lr2")
+    with pytest.raises(SystemExit):
+        X.main(["--set", str(tmp_path / "set"), "--inputs", "depth"])
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    d = tmp_path_factory.mktemp("strat")
+    s = synthetic_set(d / "set")
+    summary = X.export(s, d / "lr", inputs=("object", "scene", "rgb"))
+    return s, d / "lr", summary
+
+
+def test_export_is_a_train_only_lerobot_dataset(exported):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    _, root, summary = exported
+    frames = pd.read_parquet(root / X.FRAMES_FILE)
+    assert (frames.split == "train").all() and all(OBJECTS[b].split == "train" for b in frames.base_object_id)
+    ds = LeRobotDataset("local/x", root=root, delta_timestamps={CLOUD_KEY: [0, 0.1], "action": [0, 0.1]})
+    assert ds.num_episodes == summary["n_episodes"] == 4 * 3 and len(ds) == summary["n_frames"] == 24
+    item = ds[0]
+    assert item[CLOUD_KEY].shape == (2, 128, 3) and item["action"].shape == (2, 3)
+    assert tuple(item["observation.images.object"].shape) == (3, 16, 16)
+    # the cloth's episode interleaves strategies: a 2-frame window holds a C and an A
+    ep = frames[(frames.base_object_id == "fabric_cotton") & (frames.view == 0)].sort_values("frame_index")
+    assert set(ep.strategy) == {"A", "C"} and ep.strategy.iloc[0] != ep.strategy.iloc[1]
+    # validation = lerobot's hold-out: per object (task), the last ceil(3 * 0.3) = 1 view
+    val = E.validation_episodes(root, 0.3)
+    assert sorted(frames[frames.episode_index.isin(val)].view.unique()) == [2] and len(val) == 4
+
+
+def test_export_originals_only_and_points(exported, tmp_path):
+    set_dir, _, _ = exported
+    s = X.export(set_dir, tmp_path / "orig", originals_only=True, points=32)
+    frames = pd.read_parquet(tmp_path / "orig" / X.FRAMES_FILE)
+    assert s["n_frames"] == 12 and (frames["transform"] == "original").all()
+    info = json.loads((tmp_path / "orig" / "meta" / "info.json").read_text())
+    assert info["features"][CLOUD_KEY]["shape"] == [32, 3]
+    with pytest.raises(ValueError, match="--points"):
+        X.export(set_dir, tmp_path / "big", points=10_000)
+
+
+# ------------------------------------------------------------------------------ the real CLI
+@pytest.mark.slow
+def test_lerobot_train_cli_trains_and_checkpoint_reloads(exported, tmp_path):
+    """`lerobot-train --policy.type=flatlab_strategy` on an exported set writes a standard
+    pretrained_model; it reloads through lerobot's make_policy (what --policy.path does) and
+    predicts; strategy-eval selects a checkpoint on validation episodes only and scores a set."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.policies.factory import make_policy
+
+    set_dir, root, _ = exported
+    out = tmp_path / "train"
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    exe = Path(sys.executable).with_name("lerobot-train")
+    cmd = [str(exe), "--policy.type=flatlab_strategy", "--dataset.repo_id=local/x", f"--dataset.root={root}",
+           "--dataset.eval_split=0.3", "--eval_steps=4", "--policy.n_points=64", "--policy.encoder_channels=[16,32]",
+           "--policy.group_size=2", "--steps=8", "--batch_size=4", "--num_workers=0", "--save_freq=4", "--log_freq=4",
+           "--policy.device=cpu", "--policy.push_to_hub=false", f"--output_dir={out}"]  # fmt: skip
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "eval_loss=" in r.stdout + r.stderr and "Train/eval split" in r.stdout + r.stderr
+    pm = out / "checkpoints" / "last" / "pretrained_model"
+    assert {"config.json", "model.safetensors", "policy_preprocessor.json", "train_config.json"} <= {p.name for p in pm.iterdir()}
+    cfg = PreTrainedConfig.from_pretrained(pm)
+    cfg.pretrained_path = pm
+    policy = make_policy(cfg, ds_meta=LeRobotDatasetMetadata("local/x", root=root))
+    assert type(policy).__name__ == "FlatLabStrategyPolicy" and set(policy.config.input_features) == {CLOUD_KEY}
+    clouds = np.load(set_dir / "clouds.npy")
+    probs = policy.select_action({CLOUD_KEY: torch.as_tensor(clouds[:3])})
+    assert probs.shape == (3, 3) and torch.allclose(probs.sum(1), torch.ones(3))
+    # selection over the saved checkpoints uses the held-out TRAIN views only
+    best, sel = E.select_checkpoint(out)
+    assert sel["n_val"] == 8 and set(sel["scores"]) == {"000004", "000008"} and best.name == "pretrained_model"
+    res = tmp_path / "res.json"
+    assert E.main(["--policy", str(out), "--set", str(set_dir), "--out", str(res)]) == 0
+    d = json.loads(res.read_text())
+    assert d["per_split"]["train"]["n"] == 24 and np.sum(d["confusion_catalog"]) == 24
+    assert d["machine"] == "2 CPU cores, no GPU" and d["selection"]["selected"] in {"000004", "000008"}
+
+
+def test_chamfer_yaw_ignores_placement_yaw_not_shape():
+    rng = np.random.default_rng(3)
+    plate = _cloud("A", rng, 200, 1.0)
+    t = np.deg2rad(40.0)  # a multiple of the 10-degree yaw grid
+    rot = plate @ np.array([[np.cos(t), np.sin(t), 0], [-np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    assert E.chamfer_yaw(plate, rot) < 1e-6
+    assert E.chamfer_yaw(plate, _cloud("B", rng, 200, 1.0)) > 0.05
+
+
+def test_summarize_puts_results_beside_the_paper(tmp_path):
+    res = {"per_split": {s: {"acc_catalog": 90.0, "acc_paper": 91.0} for s in E.SPLITS},
+           "selection": {"selected": "000100", "scores": {"000100": {"val_acc": 95.0}}}, "training": {"train_wall_s": 12}}
+    p = tmp_path / "strategy_ablation_A1.json"
+    p.write_text(json.dumps(res))
+    row = E.summarize([p]).splitlines()[2]
+    assert row.startswith("| ablation_A1 | 12 | 000100 | 95.0 | 90.0 / 91.0 |") and row.endswith("| 97.1 / 88.0 / 77.3 |")
+
+
+def test_strategy_set_extras_for_ablations(tmp_path):
+    """``--extras scene,rgb``: per cloud, a unit-sphere scene cloud (A-8) and the object's RGB crop (A-7)."""
+    cfg = S.SetConfig(objects=("box_gift",), n_scales=0, views=2, image_size=128, settle=0.2, n_points=256,
+                      extras=("scene", "rgb"))  # fmt: skip
+    S.build(cfg, tmp_path / "set", workers=1, progress=False)
+    clouds = np.load(tmp_path / "set" / "clouds.npy")
+    scene, rgb = np.load(tmp_path / "set" / "scene_clouds.npy"), np.load(tmp_path / "set" / "rgb.npy")
+    assert scene.shape == clouds.shape == (2, 256, 3) and rgb.shape == (2, S.RGB_SIZE, S.RGB_SIZE, 3)
+    assert np.allclose(np.linalg.norm(scene, axis=2).max(1), 1.0, atol=1e-5)
+    assert rgb.dtype == np.uint8 and 0.2 < (rgb.max(-1) > 0).mean() < 1.0  # the object, on black
+    with pytest.raises(SystemExit):
+        S.main(["--extras", "depth"])
