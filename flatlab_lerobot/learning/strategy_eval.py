@@ -39,7 +39,6 @@ MACHINE = "2 CPU cores, no GPU"
 # ------------------------------------------------------------------------------ policy
 def load_policy(path: Path):
     """A ``flatlab_strategy`` policy from a ``pretrained_model`` folder, in eval mode on the CPU."""
-    import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy type
     from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 
     path = Path(path)
