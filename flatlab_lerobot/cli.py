@@ -19,6 +19,7 @@ PASSTHROUGH = {
     "view": "flatlab_lerobot.viz",
     "strategy-set": "flatlab_lerobot.learning.strategy_set",
     "primitive-set": "flatlab_lerobot.learning.primitive_set",
+    "primitive-export": "flatlab_lerobot.learning.primitive_export",
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
@@ -49,6 +50,7 @@ def main(argv=None) -> int:
         ("view", "open / save a rerun recording of a dataset episode with clouds, EE poses, stages, success"),
         ("strategy-set", "the strategy generator's learning set: normalized object clouds + strategy labels"),
         ("primitive-set", "the action module's learning set: scene cloud at each primitive start + start/end poses"),
+        ("primitive-export", "a primitive set as a LeRobotDataset for lerobot-train --policy.type=flatlab_executor"),
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
