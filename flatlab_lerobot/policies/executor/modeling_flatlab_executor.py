@@ -295,7 +295,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,))}}``
         as numpy arrays (B=1 kept)."""
         dev = next(self.parameters()).device
-        cloud = torch.as_tensor(np.asarray(scene_cloud, np.float32), device=dev)
+        cloud = torch.as_tensor(np.array(scene_cloud, np.float32), device=dev)
         if cloud.dim() == 2:
             cloud = cloud[None]
         if cloud.dim() != 3 or cloud.shape[-1] != 3:
@@ -312,7 +312,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         if self.config.use_proprio:
             if proprio is None:
                 raise ValueError("predict_poses: proprio (16,) is required (config.use_proprio=true)")
-            pr = torch.as_tensor(np.asarray(proprio, np.float32), device=dev).reshape(B, TCP_STATE_DIM)
+            pr = torch.as_tensor(np.array(proprio, np.float32), device=dev).reshape(B, TCP_STATE_DIM)
             batch[OBS_TCP_STATE] = pr
         out = {}
         for arm, p in zip(ARMS, self.predict_world(batch)):
