@@ -20,6 +20,7 @@ PASSTHROUGH = {
     "strategy-set": "flatlab_lerobot.learning.strategy_set",
     "primitive-set": "flatlab_lerobot.learning.primitive_set",
     "primitive-export": "flatlab_lerobot.learning.primitive_export",
+    "executor-metrics": "flatlab_lerobot.learning.executor_metrics",
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
@@ -51,6 +52,7 @@ def main(argv=None) -> int:
         ("strategy-set", "the strategy generator's learning set: normalized object clouds + strategy labels"),
         ("primitive-set", "the action module's learning set: scene cloud at each primitive start + start/end poses"),
         ("primitive-export", "a primitive set as a LeRobotDataset for lerobot-train --policy.type=flatlab_executor"),
+        ("executor-metrics", "P-MSE / R-Err of a trained flatlab_executor per split, grasp and primitive"),
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)

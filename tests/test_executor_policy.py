@@ -321,3 +321,19 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
     assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-5)
     # near the scene (the model predicts offsets from the cloud centre)
     assert np.linalg.norm(p[0] - scene[int(row.sample_index)].mean(0)) < 2.0
+
+    # the pose-error report agrees with predict_poses on the grasp samples
+    from flatlab_lerobot.learning import executor_metrics as em
+
+    mfile = tmp_path / "m.json"
+    assert em.main(["--policy.path", str(ckpt), "--dataset", str(ds), "--out", str(mfile)]) == 0
+    rep = json.loads(mfile.read_text())["splits"]
+    assert set(rep) == {"train"} and {"grasp", "grasp/A", "grasp/B", "all"} <= set(rep["train"])
+    se = []
+    for _, r in df[df.demo_success & df.apply(lambda r: r.primitive_index == C.GRASP_STAGE[r.strategy], axis=1)].iterrows():
+        tcp = np.concatenate([np.r_[r[f"{a}_tcp_pos"], r[f"{a}_tcp_quat"], r[f"{a}_gripper_measured"]] for a in C.ARMS])
+        pp = pol.predict_poses(scene[int(r.sample_index)], r.strategy, int(r.primitive_index), r.primitive, tcp)
+        se += [float(((pp[a]["start"][0][0] - r[f"{a}_start_pos"]) ** 2).sum()) for a in C.ARMS if r[f"{a}_active"]]
+    assert rep["train"]["grasp"]["n_arm_samples"] == len(se)
+    assert rep["train"]["grasp"]["p_mse_start_m2"] == pytest.approx(np.mean(se), rel=1e-4)
+    assert em.main(["--policy.path", str(tmp_path), "--dataset", str(ds)]) == 2
