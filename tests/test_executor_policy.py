@@ -144,7 +144,8 @@ def test_training_augmentation_moves_targets_with_the_cloud():
             t = b["action"]
             out.append({f"{e}_pos": fr.pos_in(t[:, sl[f"{e}_pos"]]) for e in ("start", "end")}
                        | {f"{e}_quat": fr.quat_in(t[:, sl[f"{e}_quat"]]) for e in ("start", "end")}
-                       | {g: t[:, sl[g]] for g in ("gripper_start", "gripper_end")})  # fmt: skip
+                       | {g: t[:, sl[g]] for g in ("gripper_start", "gripper_end")}
+                       | {"active_logit": torch.full((len(t),), 30.0)})  # fmt: skip
         return fr, out
 
     pol._frame = frame
@@ -153,7 +154,7 @@ def test_training_augmentation_moves_targets_with_the_cloud():
     loss, info = pol.forward(batch)
     f = captured["f"]
     assert not torch.allclose(f.s, torch.ones_like(f.s)) and not torch.allclose(f.phi, torch.zeros_like(f.phi))
-    assert info["pos_loss"] < 1e-9 and info["rot_loss"] < 1e-6 and loss.item() < 1e-5
+    assert info["pos_loss"] < 1e-9 and info["rot_loss"] < 1e-6 and info["active_loss"] < 1e-9 and loss.item() < 1e-5
 
 
 # ------------------------------------------------------------------------------ rules
@@ -171,7 +172,8 @@ def test_output_ignores_environment_state():
     assert not torch.allclose(pol.select_action(moved), a)
     other = dict(batch, **{C.OBS_PRIMITIVE: batch[C.OBS_PRIMITIVE].roll(1, 0)})
     assert not torch.allclose(pol.select_action(other), a)
-    # the world-frame outputs are unit quaternions with w >= 0
+    # the active flags are probabilities; the world-frame outputs are unit quaternions with w >= 0
+    assert ((a[:, 0] > 0) & (a[:, 0] < 1)).all() and ((a[:, C.ARM_DIM] > 0) & (a[:, C.ARM_DIM] < 1)).all()
     for i in range(2):
         sl = C.arm_slices(i)
         for e in ("start", "end"):

@@ -7,7 +7,8 @@ Per split, per strategy's grasp primitive (a_grasp / b_squeeze / c_pinch start p
 
 * ``p_mse``: mean over commanded arms of ||p_hat - p||^2 (m^2), start and end poses;
 * ``r_err``: mean geodesic angle 2 arccos |<q_hat, q>| (rad);
-* ``grip_mae``: mean |gripper width error| (m).
+* ``grip_mae``: mean |gripper width error| (m);
+* ``active_arm_accuracy`` (split rows ``all``): the predicted "primitive commands this arm" flag.
 
 The "grasp" rows are the paper's Grasping P-MSE (start pose of the grasp primitive).
 """
@@ -37,6 +38,7 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32) -> dict:
     ds = LeRobotDataset("local/flatlab_primitives_eval", root=dataset_root)
     loader = torch.utils.data.DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=0)
     acc: dict = defaultdict(lambda: defaultdict(list))
+    act_acc: dict = defaultdict(list)  # per split: predicted "arm commanded" flag == the expert's
     policy.eval()
     ns = len(STRATEGY_NAMES)
     for batch in loader:
@@ -55,7 +57,9 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32) -> dict:
                 res[f"{e}_se"] = ((p[f"{e}_pos"] - tgt[:, sl[f"{e}_pos"]]) ** 2).sum(-1)
                 res[f"{e}_th"] = geodesic_angle(p[f"{e}_quat"], tgt[:, sl[f"{e}_quat"]])
             ge = ((p["gripper_start"] - tgt[:, sl["gripper_start"]]).abs() + (p["gripper_end"] - tgt[:, sl["gripper_end"]]).abs())[:, 0] / 2
+            hit = ((p["active"][:, 0] > 0.5) == active).tolist()
             for b in range(len(active)):
+                act_acc[splits[b]].append(hit[b])
                 if not active[b]:
                     continue
                 s = STRATEGY_NAMES[strat[b]]
@@ -77,6 +81,8 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32) -> dict:
                "r_err_start_rad": float(np.mean(a["start_th"])), "r_err_end_rad": float(np.mean(a["end_th"])),
                "grip_mae_m": float(np.mean(a["grip"]))}  # fmt: skip
         out.setdefault(split, {})[key] = row
+    for split, hits in act_acc.items():
+        out.setdefault(split, {})["all"]["active_arm_accuracy"] = float(np.mean(hits))
     return out
 
 

@@ -4,7 +4,8 @@ A PointNet++ encoder of the *scene* cloud gives F_env; two parallel MLP heads (p
 conditioned on the strategy and the primitive predict each arm's commanded start and end TCP pose
 (position in m, unit quaternion wxyz) and gripper width.  Loss
 ``lambda_pos * E||p_hat - p||^2 + lambda_rot * E[theta^2]`` with ``theta = 2 arccos |<q_hat, q>|``
-(+ ``lambda_grip`` * gripper-width MSE), over the arms the primitive commands.
+(+ ``lambda_grip`` * gripper-width MSE), over the arms the primitive commands, + ``lambda_active`` *
+BCE of a per-arm "this primitive commands the arm" head (A's arm depends on where the object lies).
 
 Features (written by ``flatlab primitive-export``; see :mod:`flatlab_lerobot.learning.primitive_export`):
 
@@ -97,6 +98,7 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     lambda_pos: float = 10.0  # paper App. D: P-MSE minimal for lambda_pos 5-10 with lambda_rot 1
     lambda_rot: float = 1.0
     lambda_grip: float = 1.0
+    lambda_active: float = 0.1  # BCE of the per-arm "commanded by this primitive" flag
     rotation_loss: bool = True  # false: ablation A-4
     decompose_primitives: bool = True  # false: ablation A-5 (A-6: both false)
     # augmentation (training only; paper App. B)
@@ -141,7 +143,7 @@ class FlatLabExecutorConfig(PreTrainedConfig):
             bad("aug_scale", f"must be [lo, hi] with 0 < lo <= hi, got {self.aug_scale}")
         if self.aug_jitter_std < 0 or not (0 <= self.aug_rot_z_deg <= 180):
             bad("aug_jitter_std/aug_rot_z_deg", "jitter >= 0 m, rotation in [0, 180] deg")
-        for name in ("lambda_pos", "lambda_rot", "lambda_grip"):
+        for name in ("lambda_pos", "lambda_rot", "lambda_grip", "lambda_active"):
             if getattr(self, name) < 0:
                 bad(name, f"must be >= 0, got {getattr(self, name)}")
 

@@ -134,6 +134,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         na = len(ARMS)
         self.pos_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start xyz, end xyz, gripper start/end
         self.rot_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start quat, end quat
+        # which arms the primitive commands (A picks its pushing / grasping arm from where the object is)
+        self.active_head = _mlp([in_dim, c.head_hidden[-1], na])
         self.reset()
 
     def get_optim_params(self) -> dict:
@@ -188,12 +190,13 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         if self.config.use_proprio:
             feats.append(self._proprio_in(frame, batch[OBS_TCP_STATE].float()))
         h = torch.cat(feats, 1)
-        pos, rot = self.pos_head(h), self.rot_head(h)
+        pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
         out = []
         for i in range(len(ARMS)):
             p, r = pos[:, 8 * i : 8 * i + 8], rot[:, 8 * i : 8 * i + 8]
             out.append({"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7],
-                        "gripper_end": p[:, 7:8], "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8])})  # fmt: skip
+                        "gripper_end": p[:, 7:8], "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]),
+                        "active_logit": act[:, i]})  # fmt: skip
         return frame, out
 
     # ---------------------------------------------------------------- training
@@ -210,10 +213,12 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         prim = batch[OBS_PRIMITIVE].float()
         grasp = self.grasp_mask(prim)
         sample_w = torch.ones_like(grasp, dtype=target.dtype) if self.config.decompose_primitives else grasp.to(target.dtype)
-        pos_terms, rot_terms, grip_terms, ws = [], [], [], []
+        pos_terms, rot_terms, grip_terms, ws, act_terms = [], [], [], [], []
         for i, p in enumerate(pred):
             sl = arm_slices(i)
-            w = target[:, sl["active"]].squeeze(1) * sample_w
+            active = target[:, sl["active"]].squeeze(1)
+            w = active * sample_w
+            act_terms.append(F.binary_cross_entropy_with_logits(p["active_logit"], active, reduction="none") * sample_w)
             for end in ("start", "end"):
                 t_pos = frame.pos_in(target[:, sl[f"{end}_pos"]])
                 t_q = canonical(frame.quat_in(target[:, sl[f"{end}_quat"]]))
@@ -228,12 +233,13 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         l_pos = torch.stack(pos_terms).sum() / wsum
         l_rot = torch.stack(rot_terms).sum() / wsum
         l_grip = torch.stack(grip_terms).sum() / wsum
+        l_act = torch.stack(act_terms).sum() / (len(act_terms) * sample_w.sum()).clamp(min=1.0)
         c = self.config
-        loss = c.lambda_pos * l_pos + c.lambda_grip * l_grip
+        loss = c.lambda_pos * l_pos + c.lambda_grip * l_grip + c.lambda_active * l_act
         if c.rotation_loss:
             loss = loss + c.lambda_rot * l_rot
         # (pose errors per split / primitive: `flatlab executor-metrics`, not the augmented training batch)
-        return loss, {"pos_loss": l_pos.item(), "rot_loss": l_rot.item(), "grip_loss": l_grip.item()}
+        return loss, {"pos_loss": l_pos.item(), "rot_loss": l_rot.item(), "grip_loss": l_grip.item(), "active_loss": l_act.item()}
 
     # ---------------------------------------------------------------- inference
     @torch.no_grad()
@@ -252,6 +258,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                 "start_quat": canonical(frame.quat_out(p["start_quat"])),
                 "end_quat": canonical(frame.quat_out(p["end_quat"])),
                 "gripper_start": p["gripper_start"].clamp(min=0.0), "gripper_end": p["gripper_end"].clamp(min=0.0),
+                "active": torch.sigmoid(p["active_logit"])[:, None],
             })  # fmt: skip
         return out
 
@@ -260,8 +267,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         act = per_arm[0]["start_pos"].new_zeros(B, ACTION_DIM)
         for i, p in enumerate(per_arm):
             sl = arm_slices(i)
-            act[:, sl["active"]] = 1.0  # the executor predicts both arms; the primitive decides which it commands
-            for k, v in p.items():
+            for k, v in p.items():  # "active": the probability that the primitive commands this arm
                 act[:, sl[k]] = v
         return act
 
@@ -282,8 +288,9 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         [stage_index]``, its primitive name); scalars, or sequences of length B.
         proprio: (16,) / (B, 16) per arm measured TCP pos (3), quat wxyz (4), finger opening (1);
         required when ``config.use_proprio``.
-        Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,))}}``
-        as numpy arrays (B=1 kept)."""
+        Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
+        "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
+        primitive commands the arm (A's pushing / grasping arm depends on where the object is)."""
         dev = next(self.parameters()).device
         cloud = torch.as_tensor(np.array(scene_cloud, np.float32), device=dev)
         if cloud.dim() == 2:
@@ -308,5 +315,5 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         for arm, p in zip(ARMS, self.predict_world(batch)):
             n = {k: v.cpu().numpy() for k, v in p.items()}
             out[arm] = {"start": (n["start_pos"], n["start_quat"]), "end": (n["end_pos"], n["end_quat"]),
-                        "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0])}  # fmt: skip
+                        "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0]), "active": n["active"][:, 0]}  # fmt: skip
         return out
