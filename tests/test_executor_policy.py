@@ -339,3 +339,16 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
     assert rep["train"]["grasp"]["n_arm_samples"] == len(se)
     assert rep["train"]["grasp"]["p_mse_start_m2"] == pytest.approx(np.mean(se), rel=1e-4)
     assert em.main(["--policy.path", str(tmp_path), "--dataset", str(ds)]) == 2
+
+
+@pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
+                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6")])  # fmt: skip
+def test_recipes_parse_into_the_config(name, ablation):
+    import draccus
+
+    d = json.loads((Path(__file__).resolve().parents[1] / f"policies/flatlab_executor/{name}.json").read_text())
+    pol = {k: v for k, v in d["policy"].items() if k != "type"}
+    assert d["policy"]["type"] == "flatlab_executor"
+    cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
+    assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
+    assert d["dataset"]["root"] and d["steps"] > 0
