@@ -1,0 +1,319 @@
+"""``FlatLabExecutorPolicy``: the action execution module (paper §3.3) as a LeRobot policy.
+
+``forward`` (training, ``lerobot-train``): loss on one batch of primitive samples.
+``predict_poses`` (the unified policy's entry point): scene cloud + strategy + primitive (+ TCP
+proprioception) -> each arm's start / end pose and gripper width, in the world frame.
+``select_action`` returns the same prediction flattened in the ``action`` layout (34,).
+The policy never reads ``observation.environment_state``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION
+from torch import Tensor, nn
+
+from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
+    ACTION_DIM,
+    ARMS,
+    GRASP_STAGE,
+    MAX_STAGES,
+    OBS_POINTCLOUD,
+    OBS_PRIMITIVE,
+    OBS_TCP_STATE,
+    PRIMITIVE_DIM,
+    STRATEGY_NAMES,
+    TCP_STATE_DIM,
+    FlatLabExecutorConfig,
+    arm_slices,
+    encode_primitive,
+)
+from flatlab_lerobot.policies.executor.pointnet2 import PointNet2Encoder
+
+NS = len(STRATEGY_NAMES)
+
+
+# ------------------------------------------------------------------------------ geometry
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of wxyz quaternions (..., 4)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+         aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)  # fmt: skip
+
+
+def quat_z(phi: Tensor) -> Tensor:
+    """(B,) angles -> (B, 4) wxyz rotations about z."""
+    z = torch.zeros_like(phi)
+    return torch.stack([torch.cos(phi / 2), z, z, torch.sin(phi / 2)], -1)
+
+
+def canonical(q: Tensor) -> Tensor:
+    """Unit quaternion with w >= 0."""
+    q = F.normalize(q, dim=-1)
+    return torch.where(q[..., :1] < 0, -q, q)
+
+
+def geodesic_angle(q_hat: Tensor, q: Tensor) -> Tensor:
+    """theta = 2 arccos |<q_hat, q>| (rad) of unit quaternions; 0 for q and -q.  The gradient is
+    finite everywhere (|<.,.>| is clamped below 1 inside arccos; theta is exactly 0 at the clamp)."""
+    d = (F.normalize(q_hat, dim=-1) * F.normalize(q, dim=-1)).sum(-1).abs()
+    lim = 1.0 - 1e-7
+    theta = 2.0 * torch.acos(d.clamp(max=lim))
+    return torch.where(d >= lim, torch.zeros_like(theta), theta)
+
+
+def geodesic_loss(q_hat: Tensor, q: Tensor) -> Tensor:
+    """Paper's L_rot = E[theta^2]."""
+    return (geodesic_angle(q_hat, q) ** 2).mean()
+
+
+class SceneFrame:
+    """The model frame of a batch: ``x' = s * Rz(phi) (x - c)`` with c the cloud mean (paper App. B:
+    clouds normalised to zero mean), s and phi the augmentation (1 and 0 at eval).  Positions and
+    quaternions of the targets and the proprioception go through the same map as the cloud."""
+
+    def __init__(self, center: Tensor, scale: Tensor, phi: Tensor):
+        self.c, self.s, self.phi = center, scale, phi  # (B, 3), (B,), (B,)
+        cos, sin = torch.cos(phi), torch.sin(phi)
+        z, o = torch.zeros_like(phi), torch.ones_like(phi)
+        self.R = torch.stack([cos, -sin, z, sin, cos, z, z, z, o], -1).view(-1, 3, 3)
+        self.qz = quat_z(phi)
+
+    def _bshape(self, x: Tensor, t: Tensor) -> Tensor:
+        return t.view(t.shape[0], *([1] * (x.dim() - 2)), *t.shape[1:])
+
+    def pos_in(self, p: Tensor) -> Tensor:  # (B, ..., 3) world -> model
+        R = self._bshape(p, self.R)
+        return self._bshape(p, self.s[:, None])[..., :1] * (R @ (p - self._bshape(p, self.c)).unsqueeze(-1)).squeeze(-1)
+
+    def pos_out(self, p: Tensor) -> Tensor:  # model -> world
+        R = self._bshape(p, self.R)
+        return (R.transpose(-1, -2) @ (p / self._bshape(p, self.s[:, None])[..., :1]).unsqueeze(-1)).squeeze(-1) + self._bshape(p, self.c)
+
+    def quat_in(self, q: Tensor) -> Tensor:
+        return quat_mul(self._bshape(q, self.qz).expand_as(q), q)
+
+    def quat_out(self, q: Tensor) -> Tensor:
+        inv = self.qz * self.qz.new_tensor([1.0, -1.0, -1.0, -1.0])
+        return quat_mul(self._bshape(q, inv).expand_as(q), q)
+
+
+def _mlp(sizes: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers.append(nn.Linear(a, b))
+        if i < len(sizes) - 2:
+            layers.append(nn.ReLU(inplace=True))
+    return nn.Sequential(*layers)
+
+
+# ------------------------------------------------------------------------------ policy
+class FlatLabExecutorPolicy(PreTrainedPolicy):
+    config_class = FlatLabExecutorConfig
+    name = "flatlab_executor"
+
+    def __init__(self, config: FlatLabExecutorConfig, dataset_stats=None, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        if dataset_meta is not None:
+            from flatlab_lerobot.learning.primitive_export import check_training_tasks
+
+            check_training_tasks(dataset_meta)  # Test-alpha / Test-beta objects never train it
+        c = config
+        self.encoder = PointNet2Encoder(c.sa_npoints, c.sa_radii, c.sa_nsamples, c.sa_mlps, c.global_mlp)
+        self.cond = nn.Sequential(nn.Linear(PRIMITIVE_DIM, c.cond_dim), nn.ReLU(inplace=True))
+        in_dim = self.encoder.out_dim + c.cond_dim + (TCP_STATE_DIM if c.use_proprio else 0)
+        na = len(ARMS)
+        self.pos_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start xyz, end xyz, gripper start/end
+        self.rot_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start quat, end quat
+        # which arms the primitive commands (A picks its pushing / grasping arm from where the object is)
+        self.active_head = _mlp([in_dim, c.head_hidden[-1], na])
+        self.reset()
+
+    def get_optim_params(self) -> dict:
+        return self.parameters()
+
+    def reset(self):
+        pass
+
+    # ---------------------------------------------------------------- inputs
+    def _cloud(self, cloud: Tensor) -> Tensor:
+        n = self.config.n_points
+        N = cloud.shape[1]
+        if N >= n:
+            if self.training:  # a random subset each step; eval: the first n (the stored order is random)
+                return cloud[:, torch.randperm(N, device=cloud.device)[:n]]
+            return cloud[:, :n]
+        reps = math.ceil(n / N)
+        return cloud.repeat(1, reps, 1)[:, :n]
+
+    def _frame(self, cloud: Tensor) -> SceneFrame:
+        B = cloud.shape[0]
+        c = cloud.mean(1)
+        one, zero = cloud.new_ones(B), cloud.new_zeros(B)
+        if self.training and self.config.augment:
+            lo, hi = self.config.aug_scale
+            s = lo + (hi - lo) * torch.rand(B, device=cloud.device)
+            a = math.radians(self.config.aug_rot_z_deg)
+            phi = (2 * torch.rand(B, device=cloud.device) - 1) * a
+            return SceneFrame(c, s, phi)
+        return SceneFrame(c, one, zero)
+
+    def _conditioning(self, prim: Tensor) -> Tensor:
+        if not self.config.decompose_primitives:  # A-5 / A-6: the strategy only, no primitive
+            prim = torch.cat([prim[:, :NS], torch.zeros_like(prim[:, NS:])], 1)
+        return prim
+
+    def _proprio_in(self, frame: SceneFrame, tcp: Tensor) -> Tensor:
+        parts = []
+        for i in range(len(ARMS)):
+            a = tcp[:, 8 * i : 8 * i + 8]
+            parts += [frame.pos_in(a[:, :3]), canonical(frame.quat_in(canonical(a[:, 3:7]))), a[:, 7:8]]
+        return torch.cat(parts, 1)
+
+    def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None):
+        """-> (frame, per-arm predictions in the model frame)."""
+        cloud = self._cloud(batch[OBS_POINTCLOUD].float())
+        frame = frame or self._frame(cloud)
+        x = frame.pos_in(cloud)
+        if self.training and self.config.augment and self.config.aug_jitter_std > 0:
+            x = x + self.config.aug_jitter_std * torch.randn_like(x)
+        feats = [self.encoder(x), self.cond(self._conditioning(batch[OBS_PRIMITIVE].float()))]
+        if self.config.use_proprio:
+            feats.append(self._proprio_in(frame, batch[OBS_TCP_STATE].float()))
+        h = torch.cat(feats, 1)
+        pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
+        out = []
+        for i in range(len(ARMS)):
+            p, r = pos[:, 8 * i : 8 * i + 8], rot[:, 8 * i : 8 * i + 8]
+            out.append({"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7],
+                        "gripper_end": p[:, 7:8], "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]),
+                        "active_logit": act[:, i]})  # fmt: skip
+        return frame, out
+
+    # ---------------------------------------------------------------- training
+    def grasp_mask(self, prim: Tensor) -> Tensor:
+        """(B,) bool: the sample is its strategy's grasp primitive (a_grasp, b_squeeze, c_pinch)."""
+        strat = prim[:, :NS].argmax(1)
+        stage = prim[:, NS : NS + MAX_STAGES].argmax(1)
+        grasp = prim.new_tensor([GRASP_STAGE[s] for s in STRATEGY_NAMES]).long()
+        return stage == grasp[strat]
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        frame, pred = self._run(batch)
+        target = batch[ACTION].float()
+        prim = batch[OBS_PRIMITIVE].float()
+        grasp = self.grasp_mask(prim)
+        sample_w = torch.ones_like(grasp, dtype=target.dtype) if self.config.decompose_primitives else grasp.to(target.dtype)
+        pos_terms, rot_terms, grip_terms, ws, act_terms = [], [], [], [], []
+        for i, p in enumerate(pred):
+            sl = arm_slices(i)
+            active = target[:, sl["active"]].squeeze(1)
+            w = active * sample_w
+            act_terms.append(F.binary_cross_entropy_with_logits(p["active_logit"], active, reduction="none") * sample_w)
+            for end in ("start", "end"):
+                t_pos = frame.pos_in(target[:, sl[f"{end}_pos"]])
+                t_q = canonical(frame.quat_in(target[:, sl[f"{end}_quat"]]))
+                se = ((p[f"{end}_pos"] - t_pos) ** 2).sum(-1)
+                th = geodesic_angle(p[f"{end}_quat"], t_q)
+                pos_terms.append(se * w)
+                rot_terms.append(th**2 * w)
+                ws.append(w)
+            for g in ("gripper_start", "gripper_end"):
+                grip_terms.append(((p[g] - target[:, sl[g]]) ** 2).squeeze(1) * w)
+        wsum = torch.stack(ws).sum().clamp(min=1.0)
+        l_pos = torch.stack(pos_terms).sum() / wsum
+        l_rot = torch.stack(rot_terms).sum() / wsum
+        l_grip = torch.stack(grip_terms).sum() / wsum
+        l_act = torch.stack(act_terms).sum() / (len(act_terms) * sample_w.sum()).clamp(min=1.0)
+        c = self.config
+        loss = c.lambda_pos * l_pos + c.lambda_grip * l_grip + c.lambda_active * l_act
+        if c.rotation_loss:
+            loss = loss + c.lambda_rot * l_rot
+        # (pose errors per split / primitive: `flatlab executor-metrics`, not the augmented training batch)
+        return loss, {"pos_loss": l_pos.item(), "rot_loss": l_rot.item(), "grip_loss": l_grip.item(), "active_loss": l_act.item()}
+
+    # ---------------------------------------------------------------- inference
+    @torch.no_grad()
+    def predict_world(self, batch: dict[str, Tensor]) -> list[dict[str, Tensor]]:
+        """Per arm (``ARMS`` order) dict of world-frame predictions, tensors (B, .)."""
+        was = self.training
+        self.eval()
+        try:
+            frame, pred = self._run(batch)
+        finally:
+            self.train(was)
+        out = []
+        for p in pred:
+            out.append({
+                "start_pos": frame.pos_out(p["start_pos"]), "end_pos": frame.pos_out(p["end_pos"]),
+                "start_quat": canonical(frame.quat_out(p["start_quat"])),
+                "end_quat": canonical(frame.quat_out(p["end_quat"])),
+                "gripper_start": p["gripper_start"].clamp(min=0.0), "gripper_end": p["gripper_end"].clamp(min=0.0),
+                "active": torch.sigmoid(p["active_logit"])[:, None],
+            })  # fmt: skip
+        return out
+
+    def _flat(self, per_arm: list[dict[str, Tensor]]) -> Tensor:
+        B = per_arm[0]["start_pos"].shape[0]
+        act = per_arm[0]["start_pos"].new_zeros(B, ACTION_DIM)
+        for i, p in enumerate(per_arm):
+            sl = arm_slices(i)
+            for k, v in p.items():  # "active": the probability that the primitive commands this arm
+                act[:, sl[k]] = v
+        return act
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        return self._flat(self.predict_world(batch)).unsqueeze(1)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        return self.predict_action_chunk(batch)[:, 0]
+
+    @torch.no_grad()
+    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None) -> dict[str, dict]:
+        """The unified policy's call: one decision.
+
+        scene_cloud: (N, 3) or (B, N, 3) world-frame scene cloud (crop + cameras as the primitive set).
+        strategy / stage_index / primitive: the stage being posed (``strategies.STRATEGIES[strategy]
+        [stage_index]``, its primitive name); scalars, or sequences of length B.
+        proprio: (16,) / (B, 16) per arm measured TCP pos (3), quat wxyz (4), finger opening (1);
+        required when ``config.use_proprio``.
+        Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
+        "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
+        primitive commands the arm (A's pushing / grasping arm depends on where the object is)."""
+        dev = next(self.parameters()).device
+        cloud = torch.as_tensor(np.array(scene_cloud, np.float32), device=dev)
+        if cloud.dim() == 2:
+            cloud = cloud[None]
+        if cloud.dim() != 3 or cloud.shape[-1] != 3:
+            raise ValueError(f"predict_poses: scene_cloud must be (N, 3) or (B, N, 3), got {tuple(cloud.shape)}")
+        B = cloud.shape[0]
+
+        def per(x):
+            return list(x) if isinstance(x, (list, tuple, np.ndarray)) else [x] * B
+
+        prims = [encode_primitive(s, int(k), p) for s, k, p in zip(per(strategy), per(stage_index), per(primitive))]
+        if len(prims) != B:
+            raise ValueError(f"predict_poses: {len(prims)} primitives for {B} clouds")
+        batch = {OBS_POINTCLOUD: cloud, OBS_PRIMITIVE: torch.tensor(prims, device=dev)}
+        if self.config.use_proprio:
+            if proprio is None:
+                raise ValueError("predict_poses: proprio (16,) is required (config.use_proprio=true)")
+            pr = torch.as_tensor(np.array(proprio, np.float32), device=dev).reshape(B, TCP_STATE_DIM)
+            batch[OBS_TCP_STATE] = pr
+        out = {}
+        for arm, p in zip(ARMS, self.predict_world(batch)):
+            n = {k: v.cpu().numpy() for k, v in p.items()}
+            out[arm] = {"start": (n["start_pos"], n["start_quat"]), "end": (n["end_pos"], n["end_quat"]),
+                        "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0]), "active": n["active"][:, 0]}  # fmt: skip
+        return out

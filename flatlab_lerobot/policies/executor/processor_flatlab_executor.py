@@ -1,0 +1,14 @@
+"""Pre/post processors of ``flatlab_executor``: rename -> batch -> device in, cpu out.  No lerobot
+normalizer: the model centres the cloud on its mean and works in that frame (see the config)."""
+
+from __future__ import annotations
+
+from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
+
+
+def make_flatlab_executor_pre_post_processors(config, dataset_stats=None):
+    s = make_default_policy_processor_steps(config, None)
+    return make_policy_processor_pipelines(
+        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device],
+        output_steps=[s.to_cpu],
+    )

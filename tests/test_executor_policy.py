@@ -1,0 +1,354 @@
+"""``flatlab_executor`` (the action execution module): geodesic loss, consistent augmentation,
+privileged-state independence, ablation switches, the Train-only rule, and a real ``lerobot-train``
+run on a tiny exported primitive set whose checkpoint reloads through lerobot's ``make_policy``."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from flatlab_lerobot.policies.executor import configuration_flatlab_executor as C
+from flatlab_lerobot.policies.executor.modeling_flatlab_executor import (
+    FlatLabExecutorPolicy,
+    SceneFrame,
+    geodesic_angle,
+    geodesic_loss,
+    quat_mul,
+)
+
+OBS_ENV = "observation.environment_state"
+TINY = {"sa_npoints": [32, 8], "sa_nsamples": [8, 8], "sa_mlps": [[16], [32]], "global_mlp": [32],
+        "head_hidden": [32], "cond_dim": 8, "n_points": 64}  # fmt: skip
+
+
+def _quat_to_R(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])  # fmt: skip
+
+
+def _policy(**kw) -> FlatLabExecutorPolicy:
+    feats = {
+        C.OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, (128, 3)),
+        C.OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (C.PRIMITIVE_DIM,)),
+        C.OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (C.TCP_STATE_DIM,)),
+        OBS_ENV: PolicyFeature(FeatureType.ENV, (14,)),
+    }
+    cfg = C.FlatLabExecutorConfig(
+        device="cpu", input_features=feats, output_features={"action": PolicyFeature(FeatureType.ACTION, (C.ACTION_DIM,))},
+        **{**TINY, **kw},
+    )  # fmt: skip
+    torch.manual_seed(0)
+    return FlatLabExecutorPolicy(cfg)
+
+
+def _rand_quat(g, n):
+    q = torch.as_tensor(g.normal(size=(n, 4)), dtype=torch.float32)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return torch.where(q[:, :1] < 0, -q, q)
+
+
+def _batch(B=6, seed=0):
+    g = np.random.default_rng(seed)
+    cloud = torch.as_tensor(g.uniform([-0.3, -0.4, 0.75], [0.3, 0.4, 0.95], size=(B, 128, 3)), dtype=torch.float32)
+    prims = [("A", 14, "grasp"), ("B", 2, "squeeze"), ("C", 6, "grasp"), ("A", 0, "touch"), ("B", 3, "lift"), ("C", 0, "touch")]
+    prim = torch.tensor([C.encode_primitive(*prims[i % len(prims)]) for i in range(B)])
+    tcp = torch.cat([torch.as_tensor(g.normal(size=(B, 3)) * 0.2, dtype=torch.float32), _rand_quat(g, B),
+                     torch.full((B, 1), 0.04), torch.as_tensor(g.normal(size=(B, 3)) * 0.2, dtype=torch.float32),
+                     _rand_quat(g, B), torch.full((B, 1), 0.04)], 1)  # fmt: skip
+    act = torch.zeros(B, C.ACTION_DIM)
+    for i in range(2):
+        sl = C.arm_slices(i)
+        act[:, sl["active"]] = 1.0
+        for end in ("start", "end"):
+            act[:, sl[f"{end}_pos"]] = cloud[:, :1, :][:, 0] + torch.as_tensor(g.normal(size=(B, 3)) * 0.02, dtype=torch.float32)
+            act[:, sl[f"{end}_quat"]] = _rand_quat(g, B)
+        act[:, sl["gripper_start"]] = 0.08
+    return {C.OBS_POINTCLOUD: cloud, C.OBS_PRIMITIVE: prim, C.OBS_TCP_STATE: tcp, "action": act,
+            OBS_ENV: torch.as_tensor(g.normal(size=(B, 14)), dtype=torch.float32)}  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ loss and geometry
+def test_geodesic_loss_is_zero_for_q_and_minus_q_and_the_angle_otherwise():
+    q = _rand_quat(np.random.default_rng(1), 64)
+    assert geodesic_loss(q, q).item() == 0.0
+    assert geodesic_loss(-q, q).item() == 0.0
+    assert torch.all(geodesic_angle(-q, q) == 0)
+    # 90 deg about z against identity: theta = pi/2 (both signs)
+    ident = torch.tensor([[1.0, 0, 0, 0]])
+    qz = torch.tensor([[math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)]])
+    assert geodesic_angle(qz, ident).item() == pytest.approx(math.pi / 2, abs=1e-5)
+    assert geodesic_angle(-qz, ident).item() == pytest.approx(math.pi / 2, abs=1e-5)
+    assert geodesic_loss(qz, ident).item() == pytest.approx((math.pi / 2) ** 2, abs=1e-4)
+    # finite gradients, also at q_hat = +-q
+    qh = torch.cat([q[:4], -q[4:8], qz.expand(4, 4)]).requires_grad_(True)
+    geodesic_loss(qh, torch.cat([q[:8], ident.expand(4, 4)])).backward()
+    assert torch.isfinite(qh.grad).all() and qh.grad[8:].abs().sum() > 0
+
+
+def test_rotating_the_cloud_and_the_poses_together_is_consistent():
+    g = np.random.default_rng(2)
+    B = 5
+    cloud = torch.as_tensor(g.uniform(-0.5, 0.5, size=(B, 200, 3)), dtype=torch.float32)
+    pos = torch.as_tensor(g.uniform(-0.5, 0.5, size=(B, 3)), dtype=torch.float32)
+    q = _rand_quat(g, B)
+    s = torch.tensor([0.9, 1.1, 1.0, 0.95, 1.05])
+    phi = torch.tensor([0.3, -2.0, math.pi, 1.0, 0.0])
+    fr = SceneFrame(cloud.mean(1), s, phi)
+    c2, p2, q2 = fr.pos_in(cloud), fr.pos_in(pos), fr.quat_in(q)
+    for b in range(B):
+        # the pose keeps its place relative to the cloud: every distance scales by s
+        d1 = torch.cdist(pos[b : b + 1], cloud[b])[0]
+        d2 = torch.cdist(p2[b : b + 1], c2[b])[0]
+        torch.testing.assert_close(d2, d1 * s[b], atol=1e-5, rtol=1e-5)
+        # a rotation about z: the cloud's z spread only scales, the pose's z relative to the cloud too
+        Rz = np.array([[math.cos(phi[b]), -math.sin(phi[b]), 0], [math.sin(phi[b]), math.cos(phi[b]), 0], [0, 0, 1]])
+        np.testing.assert_allclose(c2[b].numpy(), (s[b].item() * (cloud[b] - cloud[b].mean(0)).numpy() @ Rz.T), atol=1e-5)
+        # the orientation turns with the scene: R(q') = Rz R(q)
+        np.testing.assert_allclose(_quat_to_R(q2[b].numpy()), Rz @ _quat_to_R(q[b].numpy()), atol=1e-5)
+    # back to the world frame exactly
+    torch.testing.assert_close(fr.pos_out(p2), pos, atol=1e-5, rtol=0)
+    torch.testing.assert_close(fr.quat_out(q2), q, atol=1e-5, rtol=0)
+    # and quat_in composes like rotations do
+    torch.testing.assert_close(quat_mul(fr.qz, q), q2)
+
+
+def test_training_augmentation_moves_targets_with_the_cloud():
+    """With augmentation on, a prediction that is perfect in the world frame, mapped through the
+    batch's own random frame, has zero position / rotation loss: the targets went through the same
+    scale + z-rotation as the cloud."""
+    pol = _policy(augment=True, lambda_grip=0.0)
+    batch = _batch()
+    captured = {}
+    orig = pol._frame
+
+    def frame(cloud):
+        captured["f"] = orig(cloud)
+        return captured["f"]
+
+    def perfect(b, frame=None):
+        fr = pol._frame(pol._cloud(b[C.OBS_POINTCLOUD]))
+        out = []
+        for i in range(2):
+            sl = C.arm_slices(i)
+            t = b["action"]
+            out.append({f"{e}_pos": fr.pos_in(t[:, sl[f"{e}_pos"]]) for e in ("start", "end")}
+                       | {f"{e}_quat": fr.quat_in(t[:, sl[f"{e}_quat"]]) for e in ("start", "end")}
+                       | {g: t[:, sl[g]] for g in ("gripper_start", "gripper_end")}
+                       | {"active_logit": torch.full((len(t),), 30.0)})  # fmt: skip
+        return fr, out
+
+    pol._frame = frame
+    pol.train()
+    pol._run = perfect
+    loss, info = pol.forward(batch)
+    f = captured["f"]
+    assert not torch.allclose(f.s, torch.ones_like(f.s)) and not torch.allclose(f.phi, torch.zeros_like(f.phi))
+    assert info["pos_loss"] < 1e-9 and info["rot_loss"] < 1e-6 and info["active_loss"] < 1e-9 and loss.item() < 1e-5
+
+
+# ------------------------------------------------------------------------------ rules
+def test_output_ignores_environment_state():
+    pol = _policy()
+    pol.eval()
+    batch = _batch()
+    a = pol.select_action(batch)
+    zeroed = dict(batch, **{OBS_ENV: torch.zeros_like(batch[OBS_ENV])})
+    absent = {k: v for k, v in batch.items() if k != OBS_ENV}
+    torch.testing.assert_close(pol.select_action(zeroed), a, atol=0, rtol=0)
+    torch.testing.assert_close(pol.select_action(absent), a, atol=0, rtol=0)
+    # ... but it does read the cloud and the primitive
+    moved = dict(batch, **{C.OBS_POINTCLOUD: batch[C.OBS_POINTCLOUD] * 1.2})
+    assert not torch.allclose(pol.select_action(moved), a)
+    other = dict(batch, **{C.OBS_PRIMITIVE: batch[C.OBS_PRIMITIVE].roll(1, 0)})
+    assert not torch.allclose(pol.select_action(other), a)
+    # the active flags are probabilities; the world-frame outputs are unit quaternions with w >= 0
+    assert ((a[:, 0] > 0) & (a[:, 0] < 1)).all() and ((a[:, C.ARM_DIM] > 0) & (a[:, C.ARM_DIM] < 1)).all()
+    for i in range(2):
+        sl = C.arm_slices(i)
+        for e in ("start", "end"):
+            qq = a[:, sl[f"{e}_quat"]]
+            torch.testing.assert_close(qq.norm(dim=-1), torch.ones(len(qq)))
+            assert (qq[:, 0] >= 0).all()
+
+
+def test_ablation_switches():
+    batch = _batch()
+    assert _policy().config.ablation == "full"
+    # A-4: no rotation loss -> the rotation targets do not change the loss
+    a4 = _policy(rotation_loss=False, augment=False)
+    a4.eval()
+    assert a4.config.ablation == "A-4"
+    b2 = {k: v.clone() for k, v in batch.items()}
+    for i in range(2):
+        b2["action"][:, C.arm_slices(i)["start_quat"]] = torch.tensor([0.0, 1.0, 0.0, 0.0])
+    assert a4.forward(batch)[0].item() == pytest.approx(a4.forward(b2)[0].item(), abs=0)
+    full = _policy(augment=False)
+    full.eval()
+    assert full.forward(batch)[0].item() != full.forward(b2)[0].item()
+    # A-5: one network scene (+ strategy) -> grasp pose: the primitive does not condition it, and
+    # only the grasp samples (A 14, B 2, C 6) are learned
+    a5 = _policy(decompose_primitives=False, augment=False)
+    a5.eval()
+    assert a5.config.ablation == "A-5" and _policy(decompose_primitives=False, rotation_loss=False).config.ablation == "A-6"
+    grasp = a5.grasp_mask(batch[C.OBS_PRIMITIVE])
+    assert grasp.tolist() == [True, True, True, False, False, False]
+    b3 = {k: v.clone() for k, v in batch.items()}
+    b3["action"][~grasp, 1:] += 0.5  # perturb only non-grasp targets
+    assert a5.forward(batch)[0].item() == pytest.approx(a5.forward(b3)[0].item(), abs=0)
+    assert full.forward(batch)[0].item() != full.forward(b3)[0].item()
+    b4 = dict(batch, **{C.OBS_PRIMITIVE: torch.tensor([C.encode_primitive("A", 3, "release")] * 6)})
+    b5 = dict(batch, **{C.OBS_PRIMITIVE: torch.tensor([C.encode_primitive("A", 14, "grasp")] * 6)})
+    torch.testing.assert_close(a5.select_action(b4), a5.select_action(b5), atol=0, rtol=0)
+
+
+def test_primitive_encoding_matches_the_expert_strategies():
+    from flatlab_lerobot.primitives import PRIMITIVE_NAMES
+    from flatlab_lerobot.strategies import STRATEGIES
+
+    assert tuple(PRIMITIVE_NAMES) == C.PRIMITIVE_NAMES
+    assert max(len(s) for s in STRATEGIES.values()) == C.MAX_STAGES
+    grasp_fn = {"A": "a_grasp", "B": "b_squeeze", "C": "c_pinch"}
+    for s, k in C.GRASP_STAGE.items():
+        assert STRATEGIES[s][k].__name__ == grasp_fn[s]
+    with pytest.raises(ValueError, match="stage_index"):
+        C.encode_primitive("A", 17, "grasp")
+
+
+def test_bad_config_names_the_flag():
+    with pytest.raises(ValueError, match="--policy.sa_npoints"):
+        _policy(sa_npoints=[32, 64])
+    with pytest.raises(ValueError, match="--policy.aug_scale"):
+        _policy(aug_scale=[1.1, 0.9])
+    with pytest.raises(ValueError, match="'observation.tcp_state' missing.*use_proprio=false"):
+        C.FlatLabExecutorConfig(device="cpu", input_features={
+            C.OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, (128, 3)),
+            C.OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (C.PRIMITIVE_DIM,))},
+            output_features={"action": PolicyFeature(FeatureType.ACTION, (C.ACTION_DIM,))}).validate_features()  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ data + lerobot-train
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory):
+    from flatlab_lerobot.learning import primitive_set as ps
+
+    out = tmp_path_factory.mktemp("pset")
+    cfg = ps.PrimitiveSetConfig(objects=("box_gift", "disk_compact_disc"), demos=1, n_points=256, n_object_points=32, image_size=48)
+    ps.build(cfg, out, progress=False, log=lambda *a: None)
+    return out
+
+
+def test_export_is_train_only(tiny_set, tmp_path):
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.learning import primitive_export as pe
+
+    summary = pe.export(tiny_set, tmp_path / "ds", log=lambda *a: None)
+    assert summary["objects"] == ["box_gift", "disk_compact_disc"]
+    assert all(get_object(o).split == "train" for o in summary["objects"])
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    meta = LeRobotDatasetMetadata("local/x", root=tmp_path / "ds")
+    pe.check_training_tasks(meta)  # passes
+    objs = {pe.TASK_RE.match(t)["object"] for t in meta.tasks.index}
+    assert objs == set(summary["objects"]) and all(get_object(o).split == "train" for o in objs)
+    # a set that holds a Test-alpha object is refused for training ...
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for f in ("scene_clouds.npy", "object_clouds.npy", "meta.json"):
+        (bad / f).symlink_to(tiny_set / f)
+    df = pd.read_parquet(tiny_set / "samples.parquet")
+    df.loc[df.object_id == "box_gift", "split"] = "test_alpha"
+    df.to_parquet(bad / "samples.parquet")
+    with pytest.raises(pe.PrimitiveExportError, match=r"column 'split'.*\['box_gift'\]"):
+        pe.export(bad, tmp_path / "ds2", log=lambda *a: None)
+    # ... exported for metrics only, and then the policy refuses to train on it
+    pe.export(bad, tmp_path / "ds3", eval_only=True, log=lambda *a: None)
+    meta3 = LeRobotDatasetMetadata("local/y", root=tmp_path / "ds3")
+    with pytest.raises(pe.PrimitiveExportError, match=r"outside the Train split.*box_gift \(test_alpha\)"):
+        pe.check_training_tasks(meta3)
+    with pytest.raises(pe.PrimitiveExportError, match="not `flatlab primitive-export` tasks"):
+        pe.check_training_tasks(SimpleNamespace(tasks=pd.DataFrame(index=["pick the cube"]), root="r"))
+
+
+@pytest.mark.slow
+def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
+    from flatlab_lerobot.learning import primitive_export as pe
+
+    ds = tmp_path / "ds"
+    pe.export(tiny_set, ds, log=lambda *a: None)
+    out = tmp_path / "train"
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=f"{root}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    exe = Path(sys.executable).with_name("lerobot-train")
+    cmd = [str(exe), f"--config_path={root / 'policies/flatlab_executor/cpu.json'}", f"--dataset.root={ds}",
+           "--steps=3", "--batch_size=4", "--log_freq=1", "--save_freq=3", f"--output_dir={out}",
+           "--policy.n_points=128", "--policy.sa_npoints=[32,8]", "--policy.sa_nsamples=[8,8]"]  # fmt: skip
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "step:3" in r.stdout + r.stderr and "rot_loss" in r.stdout + r.stderr
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    cfg_json = json.loads((ckpt / "config.json").read_text())
+    assert cfg_json["type"] == "flatlab_executor" and cfg_json["n_points"] == 128
+    # reload through lerobot's factory (what --policy.path does) and predict
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.policies.factory import make_policy
+
+    cfg = PreTrainedConfig.from_pretrained(ckpt)
+    cfg.pretrained_path = ckpt
+    pol = make_policy(cfg, ds_meta=LeRobotDatasetMetadata("local/flatlab_primitives", root=ds))
+    assert isinstance(pol, FlatLabExecutorPolicy)
+    direct = FlatLabExecutorPolicy.from_pretrained(ckpt)
+    for (k, v), (k2, v2) in zip(pol.state_dict().items(), direct.state_dict().items()):
+        assert k == k2 and torch.equal(v, v2)
+    from flatlab_lerobot.learning import primitive_set as ps
+
+    df, scene, _ = ps.load(tiny_set)
+    row = df[(df.strategy == "A") & (df.primitive == "grasp")].iloc[0]
+    tcp = np.concatenate([np.r_[row[f"{a}_tcp_pos"], row[f"{a}_tcp_quat"], row[f"{a}_gripper_measured"]] for a in C.ARMS])
+    poses = pol.predict_poses(scene[int(row.sample_index)], "A", int(row.primitive_index), "grasp", tcp)
+    assert set(poses) == {"left", "right"}
+    p, q = poses["left"]["start"]
+    assert p.shape == (1, 3) and q.shape == (1, 4) and np.isfinite(p).all()
+    assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-5)
+    # near the scene (the model predicts offsets from the cloud centre)
+    assert np.linalg.norm(p[0] - scene[int(row.sample_index)].mean(0)) < 2.0
+
+    # the pose-error report agrees with predict_poses on the grasp samples
+    from flatlab_lerobot.learning import executor_metrics as em
+
+    mfile = tmp_path / "m.json"
+    assert em.main(["--policy.path", str(ckpt), "--dataset", str(ds), "--out", str(mfile)]) == 0
+    rep = json.loads(mfile.read_text())["splits"]
+    assert set(rep) == {"train"} and {"grasp", "grasp/A", "grasp/B", "all"} <= set(rep["train"])
+    se = []
+    for _, r in df[df.demo_success & df.apply(lambda r: r.primitive_index == C.GRASP_STAGE[r.strategy], axis=1)].iterrows():
+        tcp = np.concatenate([np.r_[r[f"{a}_tcp_pos"], r[f"{a}_tcp_quat"], r[f"{a}_gripper_measured"]] for a in C.ARMS])
+        pp = pol.predict_poses(scene[int(r.sample_index)], r.strategy, int(r.primitive_index), r.primitive, tcp)
+        se += [float(((pp[a]["start"][0][0] - r[f"{a}_start_pos"]) ** 2).sum()) for a in C.ARMS if r[f"{a}_active"]]
+    assert rep["train"]["grasp"]["n_arm_samples"] == len(se)
+    assert rep["train"]["grasp"]["p_mse_start_m2"] == pytest.approx(np.mean(se), rel=1e-4)
+    assert em.main(["--policy.path", str(tmp_path), "--dataset", str(ds)]) == 2
+
+
+@pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
+                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6")])  # fmt: skip
+def test_recipes_parse_into_the_config(name, ablation):
+    import draccus
+
+    d = json.loads((Path(__file__).resolve().parents[1] / f"policies/flatlab_executor/{name}.json").read_text())
+    pol = {k: v for k, v in d["policy"].items() if k != "type"}
+    assert d["policy"]["type"] == "flatlab_executor"
+    cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
+    assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
+    assert d["dataset"]["root"] and d["steps"] > 0
