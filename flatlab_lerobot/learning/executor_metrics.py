@@ -102,7 +102,6 @@ def main(argv=None) -> int:
             return 2
     import torch
 
-    import flatlab_lerobot.lerobot_plugin  # noqa: F401
     from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 
     torch.set_num_threads(max(1, torch.get_num_threads()))

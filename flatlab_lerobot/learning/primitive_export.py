@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import shutil
 import sys
 import time
@@ -28,44 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from flatlab_lerobot.paths import OUTPUTS_DIR
+from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (  # noqa: F401  re-exported
+    TASK_RE, TRAIN_SPLIT, PrimitiveExportError, check_training_tasks, task_string,
+)  # fmt: skip
 
-TASK_RE = re.compile(r"^flatlab primitive \| object=(?P<object>[^|]+) \| split=(?P<split>\w+) \| strategy=(?P<strategy>[ABC])$")
-TRAIN_SPLIT = "train"
 FPS = 10  # nominal: frames are primitives, not time steps
 ROBOT_TYPE = "flatlab_dual_panda_primitives"
-
-
-class PrimitiveExportError(ValueError):
-    """Bad input; the message names the flag / file and field."""
-
-
-def task_string(object_id: str, split: str, strategy: str) -> str:
-    return f"flatlab primitive | object={object_id} | split={split} | strategy={strategy}"
-
-
-def check_training_tasks(ds_meta) -> None:
-    """Raise unless every task of the dataset is a flatlab primitive of a Train-split object."""
-    tasks = getattr(ds_meta, "tasks", None)
-    names = [] if tasks is None else list(tasks.index)
-    where = getattr(ds_meta, "root", "the dataset")
-    if not names:
-        raise PrimitiveExportError(f"{where}: meta/tasks: no tasks; not a `flatlab primitive-export` dataset")
-    bad, foreign = [], []
-    for t in names:
-        m = TASK_RE.match(str(t))
-        if m is None:
-            foreign.append(t)
-        elif m["split"] != TRAIN_SPLIT:
-            bad.append(f"{m['object']} ({m['split']})")
-    if foreign:
-        raise PrimitiveExportError(
-            f"{where}: meta/tasks: {foreign[:3]} are not `flatlab primitive-export` tasks; flatlab_executor trains only on those"
-        )
-    if bad:
-        raise PrimitiveExportError(
-            f"{where}: meta/tasks: objects outside the Train split {sorted(set(bad))}: Test-alpha / Test-beta objects "
-            "never train the executor (export the training set from Train objects only)"
-        )
 
 
 def features(n_points: int) -> dict:

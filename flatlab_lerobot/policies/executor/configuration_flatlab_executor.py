@@ -28,6 +28,8 @@ on the grasp primitive only); A-6 both.
 
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
@@ -193,3 +195,41 @@ class FlatLabExecutorConfig(PreTrainedConfig):
         if act is None or tuple(act.shape) != (ACTION_DIM,):
             got = None if act is None else tuple(act.shape)
             raise ValueError(f"flatlab_executor: output feature '{ACTION}' has shape {got}, expected ({ACTION_DIM},)")
+
+
+# ------------------------------------------------- the training set's contract (flatlab primitive-export)
+TASK_RE = re.compile(r"^flatlab primitive \| object=(?P<object>[^|]+) \| split=(?P<split>\w+) \| strategy=(?P<strategy>[ABC])$")
+TRAIN_SPLIT = "train"
+
+
+class PrimitiveExportError(ValueError):
+    """Bad input; the message names the flag / file and field."""
+
+
+def task_string(object_id: str, split: str, strategy: str) -> str:
+    return f"flatlab primitive | object={object_id} | split={split} | strategy={strategy}"
+
+
+def check_training_tasks(ds_meta) -> None:
+    """Raise unless every task of the dataset is a flatlab primitive of a Train-split object."""
+    tasks = getattr(ds_meta, "tasks", None)
+    names = [] if tasks is None else list(tasks.index)
+    where = getattr(ds_meta, "root", "the dataset")
+    if not names:
+        raise PrimitiveExportError(f"{where}: meta/tasks: no tasks; not a `flatlab primitive-export` dataset")
+    bad, foreign = [], []
+    for t in names:
+        m = TASK_RE.match(str(t))
+        if m is None:
+            foreign.append(t)
+        elif m["split"] != TRAIN_SPLIT:
+            bad.append(f"{m['object']} ({m['split']})")
+    if foreign:
+        raise PrimitiveExportError(
+            f"{where}: meta/tasks: {foreign[:3]} are not `flatlab primitive-export` tasks; flatlab_executor trains only on those"
+        )
+    if bad:
+        raise PrimitiveExportError(
+            f"{where}: meta/tasks: objects outside the Train split {sorted(set(bad))}: Test-alpha / Test-beta objects "
+            "never train the executor (export the training set from Train objects only)"
+        )

@@ -31,6 +31,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     TCP_STATE_DIM,
     FlatLabExecutorConfig,
     arm_slices,
+    check_training_tasks,
     encode_primitive,
 )
 from flatlab_lerobot.policies.executor.pointnet2 import PointNet2Encoder
@@ -124,8 +125,6 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config = config
         if dataset_meta is not None:
-            from flatlab_lerobot.learning.primitive_export import check_training_tasks
-
             check_training_tasks(dataset_meta)  # Test-alpha / Test-beta objects never train it
         c = config
         self.encoder = PointNet2Encoder(c.sa_npoints, c.sa_radii, c.sa_nsamples, c.sa_mlps, c.global_mlp)
