@@ -36,6 +36,8 @@ from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION
 
+from flatlab_lerobot.policies import identity_normalization
+
 ARMS = ("left", "right")
 STRATEGY_NAMES = ("A", "B", "C")
 PRIMITIVE_NAMES = ("move", "touch", "press", "slide", "squeeze", "grasp", "lift", "hold", "release")  # = primitives.PRIMITIVE_NAMES
@@ -111,14 +113,7 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     # optimizer (paper App. B: Adam, lr 1e-4, weight decay 1e-4)
     optimizer_lr: float = 1e-4
     optimizer_weight_decay: float = 1e-4
-    normalization_mapping: dict[str, NormalizationMode] = field(
-        default_factory=lambda: {
-            "VISUAL": NormalizationMode.IDENTITY,
-            "STATE": NormalizationMode.IDENTITY,
-            "ENV": NormalizationMode.IDENTITY,
-            "ACTION": NormalizationMode.IDENTITY,
-        }
-    )
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
         super().__post_init__()

@@ -20,6 +20,8 @@ from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from flatlab_lerobot.policies import identity_normalization
+
 
 @PreTrainedConfig.register_subclass("flatlab_scripted")
 @dataclass
@@ -27,14 +29,7 @@ class FlatLabScriptedConfig(PreTrainedConfig):
     strategy: str = "auto"  # "auto" | "A" | "B" | "C"
     thick_threshold: float = 0.04  # m: "auto" picks B for objects at least this thick
     control_dt: float = 0.1  # s: must match the env's 1/fps
-    normalization_mapping: dict[str, NormalizationMode] = field(
-        default_factory=lambda: {
-            "VISUAL": NormalizationMode.IDENTITY,
-            "STATE": NormalizationMode.IDENTITY,
-            "ENV": NormalizationMode.IDENTITY,
-            "ACTION": NormalizationMode.IDENTITY,
-        }
-    )
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
         super().__post_init__()

@@ -38,6 +38,8 @@ from lerobot.optim import AdamConfig
 from lerobot.optim.schedulers import LRSchedulerConfig
 from lerobot.utils.constants import ACTION
 
+from flatlab_lerobot.policies import identity_normalization
+
 INPUT_KEYS = ("observation.object_pointcloud", "observation.scene_pointcloud", "observation.images.object")
 NEGATIVES = ("same_object", "other_strategy")
 
@@ -80,14 +82,7 @@ class FlatLabStrategyConfig(PreTrainedConfig):
     optimizer_weight_decay: float = 1e-4
     scheduler_step_size: int = 1000  # optimizer steps
     scheduler_gamma: float = 0.5
-    normalization_mapping: dict[str, NormalizationMode] = field(
-        default_factory=lambda: {
-            "VISUAL": NormalizationMode.IDENTITY,
-            "STATE": NormalizationMode.IDENTITY,
-            "ENV": NormalizationMode.IDENTITY,
-            "ACTION": NormalizationMode.IDENTITY,
-        }
-    )
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
         super().__post_init__()
