@@ -252,3 +252,19 @@ def test_scripted_policy_succeeds_in_scenes_like_the_env_expert(scene, tmp_path)
     rec = json.loads((out / "results.jsonl").read_text().splitlines()[0])
     assert info["is_success"] and rec["G"] == 1
     assert rec["steps"] == t + 1  # the same episode, step for step
+
+
+def test_readme_act_recipe_runs_with_the_readme_env_flags():
+    """The README trains ACT with ``policies/act/tiny_rigid.json`` and evaluates it with
+    ``--env.image_size=64 --env.obs_pointcloud=false``: the recipe's inputs are exactly what the env
+    then gives (and no privileged state), so neither flatlab eval nor lerobot-eval refuses it."""
+    spec = json.loads((REPO / "policies" / "act" / "tiny_rigid.json").read_text())
+    feats = {k: PolicyFeature(FeatureType[v["type"]], tuple(v["shape"])) for k, v in spec["policy"]["input_features"].items()}
+    assert "observation.environment_state" not in feats
+    pol = SimpleNamespace(input_features=feats, output_features={"action": PolicyFeature(FeatureType.ACTION, (16,))})
+    check_policy_features(pol, FlatLabEnvConfig(image_size=64, obs_pointcloud=False))
+    with pytest.raises(PolicyEnvMismatch, match="--env.image_size=64"):
+        check_policy_features(pol, FlatLabEnvConfig())
+    readme = (REPO / "README.md").read_text()
+    assert "--config_path=policies/act/tiny_rigid.json" in readme
+    assert readme.count("--env.image_size=64 --env.obs_pointcloud=false") >= 2  # flatlab eval and lerobot-eval lines
