@@ -20,6 +20,7 @@ from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from flatlab_lerobot.lerobot_env import OBS_CELL
 from flatlab_lerobot.policies import identity_normalization
 
 
@@ -56,7 +57,7 @@ class FlatLabScriptedConfig(PreTrainedConfig):
 
     def validate_features(self) -> None:
         feats = self.input_features or {}
-        for key in (OBS_STATE, OBS_ENV_STATE, "observation.cell"):
+        for key in (OBS_STATE, OBS_ENV_STATE, OBS_CELL):
             if feats and key not in feats:
                 raise ValueError(f"flatlab_scripted needs input feature {key!r} (got {sorted(feats)})")
         act = (self.output_features or {}).get(ACTION)
