@@ -17,7 +17,7 @@ from torch import nn
 
 import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy type
 from flatlab_lerobot.policies.dp3.configuration_flatlab_dp3 import PRESETS, FlatLabDP3Config
-from flatlab_lerobot.policies.dp3.modeling_flatlab_dp3 import DP3PointEncoder, FlatLabDP3Policy, prepare_clouds
+from flatlab_lerobot.policies.dp3.modeling_flatlab_dp3 import FlatLabDP3Policy, prepare_clouds
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -193,7 +193,7 @@ def test_baseline_recipes_are_offline_and_never_read_privileged_state(recipe):
         assert (p.horizon, p.n_obs_steps, p.n_action_steps, p.num_inference_steps) == (4, 2, 3, 10)
         assert p.preset == ("simple" if recipe.stem == "cpu" else "dp3") and 512 <= p.n_points <= 1024
     if recipe.stem == "cpu":
-        assert cfg.policy.device == "cpu" and cfg.num_workers == 0 and cfg.dataset.root.endswith("baselines_cpu")
+        assert cfg.policy.device == "cpu" and cfg.num_workers <= 1 and cfg.dataset.root.endswith("baselines_cpu")
 
 
 def test_demo_recipes_record_no_privileged_state_and_fit_the_horizons():
@@ -245,7 +245,7 @@ def test_lerobot_train_then_lerobot_eval(tiny_dataset, tmp_path):
            "--policy.down_dims=[16,32,64]", "--policy.diffusion_step_embed_dim=16", "--policy.n_points=64",
            "--policy.device=cpu", "--policy.push_to_hub=false", "--steps=3", "--batch_size=2", "--num_workers=0",
            "--save_freq=3", "--log_freq=1", "--wandb.enable=false", f"--output_dir={out}"]  # fmt: skip
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     pm = out / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((pm / "config.json").read_text())
@@ -256,7 +256,7 @@ def test_lerobot_train_then_lerobot_eval(tiny_dataset, tmp_path):
            "--env.object_id=ref_box", "--env.n_points=256", "--env.obs_pixels=false", "--env.image_size=32",
            "--env.render_size=32", "--env.episode_length=6", "--eval.n_episodes=1", "--eval.batch_size=1",
            f"--output_dir={ev}"]  # fmt: skip
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     info = json.loads((ev / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1 and info["overall"]["pc_success"] == 0.0
