@@ -10,3 +10,10 @@ STRATEGIES = {
     "C": c_fold_pinch.STAGES,
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""
+
+TIMINGS = {
+    "A": a_push_to_edge.TIMINGS,
+    "B": b_squeeze.TIMINGS,
+    "C": c_fold_pinch.TIMINGS,
+}
+"""Each strategy's stage timings (:class:`~flatlab_lerobot.strategies.world.Timing`), aligned with :data:`STRATEGIES`."""
