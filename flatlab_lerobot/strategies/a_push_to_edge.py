@@ -7,7 +7,9 @@ import numpy as np
 
 from flatlab_lerobot.primitives import ArmMotion, Primitive
 from flatlab_lerobot.sim.robot import tcp_rotation
-from flatlab_lerobot.strategies.world import DOWN, FINGER_TIP_BELOW_TCP, HOLD, Timing, World, hold, hold_all, shifted, vec
+from flatlab_lerobot.strategies.world import (
+    DOWN, FINGER_TIP_BELOW_TCP, HOLD, StageSpec, World, hold, hold_all, shifted, vec,
+)  # fmt: skip
 
 # ---------------------------------------------------------------------------- strategy A
 A_OVERHANG = 0.085  # how far the object is pushed past the edge (m) ...
@@ -25,15 +27,15 @@ A_SKIP_MISSING = 0.01  # m
 A_SKIP_HOLD = 0.1  # a skipped pass's stages each hold this long (s)
 A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 0/10)
 
-# the expert's timing of each stage (duration of the Cartesian motion, transit to its start)
-T_TOUCH = Timing(0.6, transit=1.5)
-T_PRESS = Timing(0.4)
-T_SLIDE = Timing(0.5, speed=0.08, along="xy")  # max(0.5 s, distance / 8 cm/s)
-T_RELEASE = Timing(0.8)
-T_PREAPPROACH = Timing(0.2, transit=2.0)
-T_APPROACH = Timing(1.2, transit=1.0)
-T_GRASP = Timing(0.6)
-T_LIFT = Timing(1.6, speed=0.1, along="z")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
+# each stage's primitive and timing (duration of the Cartesian motion, transit to its start)
+S_TOUCH = StageSpec("touch", 0.6, transit=1.5)
+S_PRESS = StageSpec("press", 0.4)
+S_SLIDE = StageSpec("slide", 0.5, speed=0.08, along="xy")  # max(0.5 s, distance / 8 cm/s)
+S_RELEASE = StageSpec("release", 0.8)
+S_PREAPPROACH = StageSpec("move", 0.2, transit=2.0)
+S_APPROACH = StageSpec("touch", 1.2, transit=1.0)
+S_GRASP = StageSpec("grasp", 0.6)
+S_LIFT = StageSpec("lift", 1.6, speed=0.1, along="z")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
 
 
 def _a_arm(world: World, ctx: dict) -> str:
@@ -89,7 +91,7 @@ def a_touch(ex, w: World, poses, grip, ctx) -> Primitive:
     p, R = _a_press_pose(w)
     above = (p + vec(0, 0, 0.06), R)
     motion = ArmMotion(above, (p + vec(0, 0, A_PRESS_DEPTH + 0.002), R), (A_PRESS_OPEN,) * 2)
-    return Primitive("touch", {arm: motion}, T_TOUCH.seconds(), transit=T_TOUCH.transit)
+    return S_TOUCH.make({arm: motion})
 
 
 def a_press(ex, w: World, poses, grip, ctx) -> Primitive:
@@ -98,7 +100,7 @@ def a_press(ex, w: World, poses, grip, ctx) -> Primitive:
         return hold_all(poses, grip, A_SKIP_HOLD)
     start = poses[arm]
     motion = ArmMotion(start, shifted(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (A_PRESS_OPEN,) * 2)
-    return Primitive("press", {arm: motion}, T_PRESS.seconds(), transit=T_PRESS.transit)
+    return S_PRESS.make({arm: motion})
 
 
 def a_slide(ex, w: World, poses, grip, ctx) -> Primitive:
@@ -114,7 +116,7 @@ def a_slide(ex, w: World, poses, grip, ctx) -> Primitive:
     dist = min(missing * A_SLIDE_GAIN, missing + min(A_SLIDE_EXTRA, 0.5 * spare))
     start = poses[arm]
     motion = ArmMotion(start, shifted(start, (dist, 0, 0)), (A_PRESS_OPEN,) * 2)
-    return Primitive("slide", {arm: motion}, T_SLIDE.seconds(dist), transit=T_SLIDE.transit)
+    return S_SLIDE.make({arm: motion}, dist)
 
 
 def a_release(ex, w: World, poses, grip, ctx) -> Primitive:
@@ -124,7 +126,7 @@ def a_release(ex, w: World, poses, grip, ctx) -> Primitive:
         return hold_all(poses, grip, A_SKIP_HOLD)
     start = poses[arm]
     motion = ArmMotion(start, shifted(start, (0, 0, 0.12)), (A_PRESS_OPEN, A_OPEN))
-    return Primitive("release", {arm: motion}, T_RELEASE.seconds(), transit=T_RELEASE.transit)
+    return S_RELEASE.make({arm: motion})
 
 
 def _a_grasp_geometry(w: World, ctx: dict):
@@ -165,19 +167,19 @@ def a_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     if pusher != arm:  # the pushing hand backs off towards its own base, out of the grasping arm's way
         back = poses[pusher][0] + vec(-0.05, 0.15 if pusher == "left" else -0.15, 0.05)
         motions[pusher] = ArmMotion((back, poses[pusher][1]), (back, poses[pusher][1]), (grip[pusher],) * 2)
-    return Primitive("move", motions, T_PREAPPROACH.seconds(), transit=T_PREAPPROACH.transit)
+    return S_PREAPPROACH.make(motions)
 
 
 def a_approach(ex, w: World, poses, grip, ctx) -> Primitive:
     arm, end, a = _a_grasp_geometry(w, ctx)
     R = tcp_rotation(a, [0.0, 0.0, 1.0])
     motion = ArmMotion((end - A_APPROACH_LEN * a, R), (end, R), (A_OPEN, A_OPEN))
-    return Primitive("touch", {arm: motion}, T_APPROACH.seconds(), transit=T_APPROACH.transit)
+    return S_APPROACH.make({arm: motion})
 
 
 def a_grasp(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_grasp_arm(w, ctx)
-    return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))}, T_GRASP.seconds(), transit=T_GRASP.transit)
+    return S_GRASP.make({arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))})
 
 
 A_LIFT = 0.16  # lift height of a rigid object (m)
@@ -188,12 +190,12 @@ def a_lift(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_grasp_arm(w, ctx)
     start = poses[arm]
     dz = max(A_LIFT, float(max(w.size[0], w.size[1])) + A_SHEET_LIFT_MARGIN) if w.deformable else A_LIFT
-    return Primitive("lift", {arm: ArmMotion(start, shifted(start, (0.06, 0, dz)), (0.0, 0.0))}, T_LIFT.seconds(dz), transit=T_LIFT.transit)
+    return S_LIFT.make({arm: ArmMotion(start, shifted(start, (0.06, 0, dz)), (0.0, 0.0))}, dz)
 
 
 
 STAGES = (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_approach, a_grasp, a_lift, hold)
 """Strategy A's stages: up to A_PASSES push passes, then the side grasp of the overhang."""
-TIMINGS = (T_TOUCH, T_PRESS, T_SLIDE, T_RELEASE) * A_PASSES + (T_PREAPPROACH, T_APPROACH, T_GRASP, T_LIFT, HOLD)
-"""Each stage's :class:`Timing` (a skipped pass holds A_SKIP_HOLD instead)."""
+SPECS = (S_TOUCH, S_PRESS, S_SLIDE, S_RELEASE) * A_PASSES + (S_PREAPPROACH, S_APPROACH, S_GRASP, S_LIFT, HOLD)
+"""Each stage's :class:`StageSpec`: primitive name and timing (a skipped pass holds A_SKIP_HOLD instead)."""
 PASS_STAGES = 4  # stages per push pass: touch, press, slide, release

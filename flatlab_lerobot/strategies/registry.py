@@ -11,9 +11,10 @@ STRATEGIES = {
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""
 
-TIMINGS = {
-    "A": a_push_to_edge.TIMINGS,
-    "B": b_squeeze.TIMINGS,
-    "C": c_fold_pinch.TIMINGS,
+STAGE_SPECS = {
+    "A": a_push_to_edge.SPECS,
+    "B": b_squeeze.SPECS,
+    "C": c_fold_pinch.SPECS,
 }
-"""Each strategy's stage timings (:class:`~flatlab_lerobot.strategies.world.Timing`), aligned with :data:`STRATEGIES`."""
+"""Each strategy's stage specs (:class:`~flatlab_lerobot.strategies.world.StageSpec`: primitive name,
+duration, transit), aligned with :data:`STRATEGIES`."""
