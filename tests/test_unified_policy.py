@@ -106,6 +106,15 @@ def test_artifact_is_a_pretrained_model_folder_holding_both_submodels(tiny):
     assert f"--env.n_points={N}" in rec["env_flags"] and f"--env.n_object_points={K}" in rec["env_flags"]
 
 
+def test_plugin_registers_the_type_and_lerobot_finds_its_classes():
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    assert "flatlab_unified" in PreTrainedConfig.get_known_choices()
+    assert get_policy_class("flatlab_unified") is FlatLabUnifiedPolicy
+    pre, post = make_pre_post_processors(FlatLabUnifiedConfig(device="cpu"))
+    assert [type(s).__name__ for s in pre.steps][-1] == "DeviceProcessorStep"
+
+
 def _rollout(policies, steps: int, object_id=OBJECT, seed=0, batch_fns=None):
     """One env episode driven by ``policies[0]``; every policy sees the same observation (through its
     ``batch_fns`` entry) at every step.  Returns the actions (policies x steps x 16)."""
