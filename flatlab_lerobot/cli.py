@@ -1,5 +1,6 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
-``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``."""
+``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``,
+``primitive-export``, ``executor-metrics``, ``unified-build``."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ PASSTHROUGH = {
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
     "strategy-export": "flatlab_lerobot.learning.strategy_export",
     "strategy-eval": "flatlab_lerobot.learning.strategy_eval",
+    "unified-build": "flatlab_lerobot.learning.unified_build",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -58,6 +60,7 @@ def main(argv=None) -> int:
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
         ("strategy-export", "a strategy set as a LeRobotDataset v3 for lerobot-train --policy.type=flatlab_strategy"),
         ("strategy-eval", "learned strategy generator: accuracy per split / category, confusion, cloud ambiguity"),
+        ("unified-build", "one flatlab_unified policy folder from a trained flatlab_strategy and flatlab_executor"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
