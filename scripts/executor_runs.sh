@@ -29,10 +29,6 @@ export_if() {  # set out [--eval-only]
 }
 set_if $L/primitive_set_cpu split:train "$DEMOS"
 export_if $L/primitive_set_cpu $L/primitive_dataset_cpu
-set_if $L/primitive_set_alpha split:test_alpha "$TEST_DEMOS"
-export_if $L/primitive_set_alpha $L/primitive_dataset_alpha --eval-only
-set_if $L/primitive_set_beta split:test_beta "$TEST_DEMOS"
-export_if $L/primitive_set_beta $L/primitive_dataset_beta --eval-only
 mkdir -p docs/results
 for r in ${*:-cpu}; do
   out=outputs/train/executor_$r
@@ -44,6 +40,10 @@ for r in ${*:-cpu}; do
     timed outputs/logs/executor_train_$r.wall.json $BIN/lerobot-train "${resume[@]}" > outputs/logs/train_executor_$r.log 2>&1
     cp outputs/logs/executor_train_$r.wall.json "$out/train_wall.json"
   fi
+  set_if $L/primitive_set_alpha split:test_alpha "$TEST_DEMOS"
+  export_if $L/primitive_set_alpha $L/primitive_dataset_alpha --eval-only
+  set_if $L/primitive_set_beta split:test_beta "$TEST_DEMOS"
+  export_if $L/primitive_set_beta $L/primitive_dataset_beta --eval-only
   res=docs/results/executor_$r.json
   [ -f "$res" ] || $PY -m flatlab_lerobot.cli executor-metrics --policy.path $out/checkpoints/last/pretrained_model \
       --dataset $L/primitive_dataset_cpu --dataset $L/primitive_dataset_alpha --dataset $L/primitive_dataset_beta --out "$res"

@@ -158,7 +158,7 @@ def env_flags(settings: dict) -> list[str]:
 
 
 def build(generator: Path, executor: Path, out: Path, strategy: str = "learned", allow_unverified: bool = False,
-          device: str = "cpu", log=print) -> dict:  # fmt: skip
+          device: str = "cpu", object_points: int | None = None, log=print) -> dict:  # fmt: skip
     """Write the artifact; returns the build record (also ``<out>/flatlab_unified_build.json``)."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.utils.constants import ACTION, OBS_STATE
@@ -194,6 +194,10 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     n = tuple(ex_feats[OBS_POINTCLOUD].shape)
     obj_ft = ex_feats.get(OBS_OBJECT_CLOUD) or gen_cfg.input_features.get(gen_cfg.input_key)
     k = tuple(obj_ft.shape) if obj_ft is not None else (256, 3)
+    if object_points is not None:  # a denser observed object cloud: the generator FPS-resamples it
+        if object_points < 16:
+            raise UnifiedBuildError(f"--object-points {object_points}: must be >= 16")
+        k = (int(object_points), 3)
     cfg = FlatLabUnifiedConfig(
         generator=gen_cfg, executor=ex_cfg, strategy=strategy, device=device, push_to_hub=False,
         input_features={
@@ -252,9 +256,13 @@ def main(argv=None) -> int:
     ap.add_argument("--allow-unverified", action="store_true",
                     help="build even when a sub-model's training data cannot be checked for Train-only objects")  # fmt: skip
     ap.add_argument("--device", default="cpu", help="the artifact's policy.device (default cpu)")
+    ap.add_argument("--object-points", type=int, default=None,
+                    help="the env's n_object_points the artifact expects (default: the executor's); more points than "
+                    "the generator's generator_cloud_points (2048) are farthest-point resampled to it, as the strategy set is")
     args = ap.parse_args(argv)
     try:
-        build(args.generator, args.executor, args.out, args.strategy, args.allow_unverified, args.device)
+        build(args.generator, args.executor, args.out, args.strategy, args.allow_unverified, args.device,
+              object_points=args.object_points)
     except UnifiedBuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -18,20 +18,11 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
 
+from flatlab_lerobot.policies import fps_indices
 from flatlab_lerobot.policies.dp3.configuration_flatlab_dp3 import FlatLabDP3Config
 
 
 # ------------------------------------------------------------------------------ point clouds
-def fps_indices(points: np.ndarray, n: int) -> np.ndarray:
-    """Indices of ``n`` of ``points`` (K, 3): farthest-point sampling from point 0 when K > n (so the
-    same cloud always gives the same points), every point once plus repeats of the first when K <= n."""
-    import fpsample
-
-    k = len(points)
-    if k > n:
-        h = int(np.clip(np.log2(k) - 8, 3, 9))  # KD-tree height: buckets of 2**h points
-        return np.asarray(fpsample.bucket_fps_kdline_sampling(points, n, h=h, start_idx=0), np.int64)
-    return np.resize(np.arange(k), n)
 
 
 def prepare_clouds(clouds: Tensor, n_points: int, lo, hi, crop: bool = True) -> Tensor:

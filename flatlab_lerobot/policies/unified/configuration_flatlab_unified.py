@@ -68,6 +68,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # an arm is commanded by a stage when the executor's "active" probability exceeds this; when no
     # arm does, the more probable one (every trained sample commands at least one moving arm)
     active_threshold: float = 0.5
+    # the observed object cloud is farthest-point resampled to this many points before the generator
+    # reads it, as the strategy set's clouds are (FPS of all object pixels to 2048); 0: fed as observed
+    generator_cloud_points: int = 2048
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -76,6 +79,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if not 1 <= int(self.max_push_passes) <= A_PASSES:
             raise ValueError(f"--policy.max_push_passes: must be in [1, {A_PASSES}], got {self.max_push_passes!r}")
+        if self.generator_cloud_points < 0:
+            raise ValueError(f"--policy.generator_cloud_points: must be >= 0, got {self.generator_cloud_points!r}")
         if not 0.0 < self.active_threshold < 1.0:
             raise ValueError(f"--policy.active_threshold: must be in (0, 1), got {self.active_threshold!r}")
         if not 0.0 < self.control_dt <= 1.0:

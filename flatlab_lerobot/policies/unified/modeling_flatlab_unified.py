@@ -46,6 +46,7 @@ from lerobot.utils.constants import OBS_STATE
 from torch import Tensor
 
 from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
+from flatlab_lerobot.policies import fps_indices
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
@@ -235,7 +236,11 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
     def choose_strategy(self, object_cloud: np.ndarray) -> str:
         """The generator's strategy (A/B/C) for one object cloud (K, 3)."""
         dev = next(self.generator.parameters()).device
-        x = torch.as_tensor(np.asarray(object_cloud, np.float32), device=dev)[None]
+        pts = np.asarray(object_cloud, np.float32)
+        n = self.config.generator_cloud_points
+        if n and len(pts) > n:  # the strategy set's clouds are FPS samples: same density here
+            pts = pts[fps_indices(np.ascontiguousarray(pts, np.float64), n)]
+        x = torch.as_tensor(pts, device=dev)[None]
         return self.generator.predict_strategy({GENERATOR_INPUT: x})[0]
 
     @staticmethod
