@@ -1,5 +1,6 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
-``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``."""
+``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``, ``desk``,
+``paper``."""
 
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ PASSTHROUGH = {
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
     "strategy-export": "flatlab_lerobot.learning.strategy_export",
     "strategy-eval": "flatlab_lerobot.learning.strategy_eval",
+    "desk": "flatlab_lerobot.paper.desk",
+    "paper": "flatlab_lerobot.paper.main",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -58,6 +61,8 @@ def main(argv=None) -> int:
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
         ("strategy-export", "a strategy set as a LeRobotDataset v3 for lerobot-train --policy.type=flatlab_strategy"),
         ("strategy-eval", "learned strategy generator: accuracy per split / category, confusion, cloud ambiguity"),
+        ("desk", "the five-object desk (clear_desk) with the scripted expert over layout seeds"),
+        ("paper", "the paper's results: run the missing stages of a preset (cached), render docs/results.md"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
