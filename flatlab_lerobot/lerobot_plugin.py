@@ -11,6 +11,8 @@ def register() -> None:
     import flatlab_lerobot.policies.scripted.configuration_flatlab_scripted  # noqa: F401  "flatlab_scripted"
     import flatlab_lerobot.policies.strategy.configuration_flatlab_strategy  # noqa: F401  "flatlab_strategy"
     import flatlab_lerobot.policies.executor.configuration_flatlab_executor  # noqa: F401  "flatlab_executor"
+    import flatlab_lerobot.policies.dp3.configuration_flatlab_dp3  # noqa: F401  "flatlab_dp3"
+    import flatlab_lerobot.policies.unified.configuration_flatlab_unified  # noqa: F401  "flatlab_unified"
 
 
 register()

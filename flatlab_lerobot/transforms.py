@@ -247,12 +247,21 @@ class Variant:
 
     @property
     def strategy(self) -> str:
-        """The original keeps its catalog label; every transformed instance carries the rule's."""
-        return self.base.strategy if self.transform == "original" else label(self.spec)
+        """The original keeps its catalog label.  A transformed instance keeps it too while the rule
+        gives the instance the same label as its base (the transform crosses no threshold of
+        :data:`LABEL_RULE`); where the rule's label changes (a book scaled past the B thickness, a
+        cloth's rigid counterpart), the instance carries the rule's new label.  So a base whose
+        grounded label the rule does not reproduce (e.g. the stiff mouse pads: catalog A, rule C)
+        does not teach the opposite label through its rescaled copies."""
+        return label(self.spec) if self.label_source == "rule" else self.base.strategy
 
     @property
     def label_source(self) -> str:
-        return "catalog" if self.transform == "original" else "rule"
+        """``catalog`` (the original), ``catalog_kept`` (transformed, the rule's label unchanged)
+        or ``rule`` (transformed across a threshold of the rule)."""
+        if self.transform == "original":
+            return "catalog"
+        return "catalog_kept" if label(self.spec) == label(self.base) else "rule"
 
 
 def variants(

@@ -37,8 +37,8 @@ def _quat_to_R(q):
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])  # fmt: skip
 
 
-def _policy(**kw) -> FlatLabExecutorPolicy:
-    feats = {
+def _policy(extra_features=None, **kw) -> FlatLabExecutorPolicy:
+    feats = {**(extra_features or {}),
         C.OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, (128, 3)),
         C.OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (C.PRIMITIVE_DIM,)),
         C.OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (C.TCP_STATE_DIM,)),
@@ -132,8 +132,8 @@ def test_training_augmentation_moves_targets_with_the_cloud():
     captured = {}
     orig = pol._frame
 
-    def frame(cloud):
-        captured["f"] = orig(cloud)
+    def frame(cloud, c=None):
+        captured["f"] = orig(cloud, c)
         return captured["f"]
 
     def perfect(b, frame=None):
@@ -313,10 +313,11 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
         assert k == k2 and torch.equal(v, v2)
     from flatlab_lerobot.learning import primitive_set as ps
 
-    df, scene, _ = ps.load(tiny_set)
+    df, scene, objs = ps.load(tiny_set)
     row = df[(df.strategy == "A") & (df.primitive == "grasp")].iloc[0]
     tcp = np.concatenate([np.r_[row[f"{a}_tcp_pos"], row[f"{a}_tcp_quat"], row[f"{a}_gripper_measured"]] for a in C.ARMS])
-    poses = pol.predict_poses(scene[int(row.sample_index)], "A", int(row.primitive_index), "grasp", tcp)
+    poses = pol.predict_poses(scene[int(row.sample_index)], "A", int(row.primitive_index), "grasp", tcp,
+                              object_cloud=objs[int(row.sample_index)])
     assert set(poses) == {"left", "right"}
     p, q = poses["left"]["start"]
     assert p.shape == (1, 3) and q.shape == (1, 4) and np.isfinite(p).all()
@@ -334,7 +335,8 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
     se = []
     for _, r in df[df.demo_success & df.apply(lambda r: r.primitive_index == C.GRASP_STAGE[r.strategy], axis=1)].iterrows():
         tcp = np.concatenate([np.r_[r[f"{a}_tcp_pos"], r[f"{a}_tcp_quat"], r[f"{a}_gripper_measured"]] for a in C.ARMS])
-        pp = pol.predict_poses(scene[int(r.sample_index)], r.strategy, int(r.primitive_index), r.primitive, tcp)
+        pp = pol.predict_poses(scene[int(r.sample_index)], r.strategy, int(r.primitive_index), r.primitive, tcp,
+                               object_cloud=objs[int(r.sample_index), : pol.config.input_features[C.OBS_OBJECT_CLOUD].shape[0]])
         se += [float(((pp[a]["start"][0][0] - r[f"{a}_start_pos"]) ** 2).sum()) for a in C.ARMS if r[f"{a}_active"]]
     assert rep["train"]["grasp"]["n_arm_samples"] == len(se)
     assert rep["train"]["grasp"]["p_mse_start_m2"] == pytest.approx(np.mean(se), rel=1e-4)
@@ -352,3 +354,42 @@ def test_recipes_parse_into_the_config(name, ablation):
     cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
     assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
     assert d["dataset"]["root"] and d["steps"] > 0
+
+
+def test_object_frame_centres_on_the_seen_object_points():
+    """frame_center="object": the model frame's origin is the mean of the object cloud's seen
+    (non-zero) points, the scene mean when none is seen; a translation of the whole scene (clouds,
+    proprioception) moves the predicted poses by the same amount, and predict_poses asks for it."""
+    pol = _policy({C.OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, (32, 3))}, frame_center="object")
+    pol.eval()
+    b = _batch(B=2)
+    obj = b[C.OBS_POINTCLOUD][:, :32].clone()
+    obj[:, 20:] = 0.0  # unseen rows
+    obj[1] = 0.0  # nothing seen
+    b[C.OBS_OBJECT_CLOUD] = obj
+    c = pol._center(b, pol._cloud(b[C.OBS_POINTCLOUD]))
+    torch.testing.assert_close(c[0], obj[0, :20].mean(0))
+    torch.testing.assert_close(c[1], pol._cloud(b[C.OBS_POINTCLOUD])[1].mean(0))
+    shift = torch.tensor([0.05, -0.03, 0.0])
+    b2 = dict(b)
+    b2[C.OBS_POINTCLOUD] = b[C.OBS_POINTCLOUD] + shift
+    o2 = obj.clone()
+    o2[0, :20] += shift
+    b2[C.OBS_OBJECT_CLOUD] = o2
+    tcp = b[C.OBS_TCP_STATE].clone()
+    for i in range(2):
+        tcp[:, 8 * i : 8 * i + 3] += shift
+    b2[C.OBS_TCP_STATE] = tcp
+    p1, p2 = pol.predict_world(b)[0], pol.predict_world(b2)[0]
+    torch.testing.assert_close(p2["start_pos"][0], p1["start_pos"][0] + shift, atol=1e-4, rtol=0)
+    with pytest.raises(ValueError, match="object_cloud"):
+        pol.predict_poses(b[C.OBS_POINTCLOUD][0], "A", 0, "touch", b[C.OBS_TCP_STATE][0])
+    out = pol.predict_poses(b[C.OBS_POINTCLOUD][0], "A", 0, "touch", b[C.OBS_TCP_STATE][0], object_cloud=obj[0])
+    assert out["left"]["start"][0].shape == (1, 3)
+
+
+def test_object_frame_needs_the_object_cloud_feature():
+    with pytest.raises(ValueError, match="object_pointcloud"):
+        _policy(frame_center="object")
+    with pytest.raises(ValueError, match="frame_center"):
+        _policy(frame_center="table")

@@ -21,7 +21,7 @@ def test_recipe_parses_as_a_train_pipeline_config(path):
     import lerobot.policies  # noqa: F401  registers lerobot's policy types, as lerobot-train does
     from lerobot.configs.train import TrainPipelineConfig
 
-    import flatlab_lerobot  # noqa: F401  registers the flatlab env and policy types
+    import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the flatlab env and policy types (as lerobot's CLIs do)
 
     raw = json.loads(path.read_text())
     cfg = draccus.parse(config_class=TrainPipelineConfig, config_path=path, args=[])

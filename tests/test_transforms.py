@@ -150,8 +150,11 @@ def test_variants():
     cloth = T.variants(OBJECTS["mousepad_standard"])
     assert len(cloth) == 16
     assert [v.transform for v in cloth] == ["original"] + ["scale"] * 7 + ["rigid"] + ["scale+rigid"] * 7
-    # the original keeps its (grounded) catalog label -- A, measured -- its scales get the rule's C
-    assert [v.strategy for v in cloth] == ["A"] + ["C"] * 7 + ["A"] * 8
+    # the original keeps its (grounded) catalog label -- A, measured; the rule says C for the original
+    # and its scales alike, so the scales keep A too (no transform crosses a threshold of the rule);
+    # the rigid counterparts change the rule's label (C -> A): they carry the rule's A
+    assert [v.strategy for v in cloth] == ["A"] * 16
+    assert [v.label_source for v in cloth] == ["catalog"] + ["catalog_kept"] * 7 + ["rule"] * 8
     assert OBJECTS["mousepad_standard"].paper_strategy == "C"
     assert cloth[9].spec.id == cloth[1].spec.id + "@rigid" and cloth[9].spec.size == cloth[1].spec.size
     book = T.variants(OBJECTS["book_cookbook"], n_scales=3)
@@ -159,7 +162,10 @@ def test_variants():
     assert (
         book[0].strategy == "A" and book[0].label_source == "catalog"
     )  # the catalog label, even where the rule says B
-    assert [v.strategy for v in book[1:]] == [T.label(v.spec) for v in book[1:]]
+    assert [v.strategy for v in book[1:]] == [T.label(v.spec) if T.label(v.spec) != T.label(book[0].spec) else "A" for v in book[1:]]
+    thin = T.variants(OBJECTS["book_paperback_novel"], n_scales=7)  # a thin A book: its thickest scales cross into B
+    assert {v.label_source for v in thin[1:]} == {"catalog_kept", "rule"}
+    assert all(v.strategy == "B" for v in thin if v.label_source == "rule")
     assert len({v.spec.id for v in T.variants(OBJECTS["box_gift"])}) == 8
 
 

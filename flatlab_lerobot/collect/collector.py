@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import json
 import logging
 import os
 import resource
@@ -280,6 +281,18 @@ def with_overrides(recipe: Recipe, episodes: int | None = None, workers: int | N
     return recipe
 
 
+def successful_episodes(root: Path) -> list[int]:
+    """The dataset episode indices of the successful demonstrations in a collected dataset (for
+    ``lerobot-train --dataset.episodes=[...]``), from ``meta/flatlab_episodes.jsonl``."""
+    from flatlab_lerobot.collect.store import EPISODES_JSONL
+
+    p = Path(root) / EPISODES_JSONL
+    if not p.is_file():
+        raise RecipeError(f"{root}: not a collected dataset (no {EPISODES_JSONL}); run `flatlab collect` first")
+    recs = [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+    return [int(r["dataset_episode_index"]) for r in recs if r["success"] and r.get("dataset_episode_index") is not None]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         prog="flatlab collect", description="collect scripted-expert demos from a recipe into a LeRobotDataset (v3)"
@@ -293,6 +306,8 @@ def main(argv=None) -> int:
     ap.add_argument("--overwrite", action="store_true", help="delete an existing dataset of that name first")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--quiet", action="store_true", help="silence lerobot's info logging")
+    ap.add_argument("--successful-episodes", action="store_true", help="collect nothing: print the recipe's "
+                    "dataset's successful episode indices as a JSON list, for lerobot-train --dataset.episodes=...")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quiet:
         logging.getLogger().setLevel(logging.WARNING)
@@ -302,6 +317,9 @@ def main(argv=None) -> int:
             from flatlab_lerobot.paths import OUTPUTS_DIR
 
             args.out = OUTPUTS_DIR / "datasets"
+        if args.successful_episodes:
+            print(json.dumps(successful_episodes(args.out / recipe.name), separators=(",", ":")))
+            return 0
         collect(recipe, args.out, overwrite=args.overwrite, progress=not args.no_progress)
     except (RecipeError, DatasetMismatch) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -35,9 +35,9 @@ FPS = 10  # nominal: frames are primitives, not time steps
 ROBOT_TYPE = "flatlab_dual_panda_primitives"
 
 
-def features(n_points: int) -> dict:
+def features(n_points: int, n_object_points: int = 256) -> dict:
     from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
-        ACTION_DIM, ACTION_NAMES, ARMS, MAX_STAGES, OBS_POINTCLOUD, OBS_PRIMITIVE, OBS_TCP_STATE, PRIMITIVE_DIM,
+        ACTION_DIM, ACTION_NAMES, ARMS, MAX_STAGES, OBS_OBJECT_CLOUD, OBS_POINTCLOUD, OBS_PRIMITIVE, OBS_TCP_STATE, PRIMITIVE_DIM,
         PRIMITIVE_NAMES, STRATEGY_NAMES, TCP_STATE_DIM,
     )  # fmt: skip
 
@@ -46,16 +46,17 @@ def features(n_points: int) -> dict:
     tcp_names = [f"{a}_{f}" for a in ARMS for f in ("x", "y", "z", "qw", "qx", "qy", "qz", "gripper")]
     return {
         OBS_POINTCLOUD: {"dtype": "float32", "shape": (n_points, 3), "names": ["points", "xyz"]},
+        OBS_OBJECT_CLOUD: {"dtype": "float32", "shape": (n_object_points, 3), "names": ["points", "xyz"]},
         OBS_PRIMITIVE: {"dtype": "float32", "shape": (PRIMITIVE_DIM,), "names": prim_names},
         OBS_TCP_STATE: {"dtype": "float32", "shape": (TCP_STATE_DIM,), "names": tcp_names},
         "action": {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
     }
 
 
-def frame_of(row, cloud: np.ndarray) -> dict:
-    """One sample row (+ its scene cloud) -> a dataset frame (no ``task``)."""
+def frame_of(row, cloud: np.ndarray, object_cloud: np.ndarray) -> dict:
+    """One sample row (+ its scene and object clouds) -> a dataset frame (no ``task``)."""
     from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
-        ARM_FIELDS, ARMS, OBS_POINTCLOUD, OBS_PRIMITIVE, OBS_TCP_STATE, encode_primitive,
+        ARM_FIELDS, ARMS, OBS_OBJECT_CLOUD, OBS_POINTCLOUD, OBS_PRIMITIVE, OBS_TCP_STATE, encode_primitive,
     )  # fmt: skip
 
     tcp, act = [], []
@@ -67,6 +68,7 @@ def frame_of(row, cloud: np.ndarray) -> dict:
             act.append(np.atleast_1d(np.asarray(v, np.float32)))
     return {
         OBS_POINTCLOUD: np.asarray(cloud, np.float32),
+        OBS_OBJECT_CLOUD: np.asarray(object_cloud, np.float32),
         OBS_PRIMITIVE: np.float32(encode_primitive(row["strategy"], int(row["primitive_index"]), row["primitive"])),
         OBS_TCP_STATE: np.concatenate(tcp).astype(np.float32),
         "action": np.concatenate(act).astype(np.float32),
@@ -81,6 +83,7 @@ def export(
     include_failed: bool = False,
     keep_still: bool = False,
     repo_id: str = "local/flatlab_primitives",
+    object_points: int = 256,
     overwrite: bool = False,
     log=print,
 ) -> dict:
@@ -91,7 +94,7 @@ def export(
 
     t0 = time.perf_counter()
     try:
-        df, scene, _ = ps.load(Path(set_dir))
+        df, scene, objects = ps.load(Path(set_dir))
     except ps.PrimitiveSetError as exc:
         raise PrimitiveExportError(f"--set: {exc}") from exc
     splits = sorted(set(df["split"]))
@@ -114,12 +117,14 @@ def export(
         if not overwrite:
             raise PrimitiveExportError(f"--out {out}: exists (use --overwrite)")
         shutil.rmtree(out)
-    ds = LeRobotDataset.create(repo_id, FPS, features(scene.shape[1]), root=out, robot_type=ROBOT_TYPE, use_videos=False)
+    k = min(int(object_points), objects.shape[1])  # the stored object cloud is in random order: its first k
+    ds = LeRobotDataset.create(repo_id, FPS, features(scene.shape[1], k), root=out, robot_type=ROBOT_TYPE, use_videos=False)
     n_eps = 0
     for (_, _), ep in sel.groupby(["object_id", "demo_index"], sort=False):
         ep = ep.sort_values("primitive_index")
         for _, row in ep.iterrows():
-            frame = frame_of(row, scene[int(row["sample_index"])])
+            i = int(row["sample_index"])
+            frame = frame_of(row, scene[i], objects[i, :k])
             frame["task"] = task_string(row["object_id"], row["split"], row["strategy"])
             ds.add_frame(frame)
         ds.save_episode()
@@ -136,6 +141,7 @@ def export(
         "dropped": {"failed_demos": int((~df["demo_success"].to_numpy(bool)).sum()) if not include_failed else 0,
                     "total": int((~keep).sum())},  # fmt: skip
         "n_points": int(scene.shape[1]),
+        "n_object_points": k,
         "wall_s": round(time.perf_counter() - t0, 2),
     }
     (out / "flatlab_export.json").write_text(json.dumps(summary, indent=1))
@@ -155,11 +161,13 @@ def main(argv=None) -> int:
     ap.add_argument("--eval-only", action="store_true", help="allow Test-alpha/beta objects (metrics only; cannot train)")
     ap.add_argument("--include-failed", action="store_true", help="also export samples of failed demos")
     ap.add_argument("--keep-still", action="store_true", help="keep samples where no arm moves")
+    ap.add_argument("--object-points", type=int, default=256,
+                    help="object cloud points per frame (default 256, the env's n_object_points)")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
     try:
         export(args.set, args.out, eval_only=args.eval_only, include_failed=args.include_failed,
-               keep_still=args.keep_still, repo_id=args.repo_id, overwrite=args.overwrite)  # fmt: skip
+               keep_still=args.keep_still, repo_id=args.repo_id, object_points=args.object_points, overwrite=args.overwrite)  # fmt: skip
     except PrimitiveExportError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -8,8 +8,9 @@ the same simulation pipeline as the demonstrations:
 1. objects: the catalog objects of ``--splits`` (default: train) or ``--objects``; for each, its
    variants (:func:`flatlab_lerobot.transforms.variants`): the original, ``--scales`` (7) uniform
    rescalings over its sensible range, and for a cloth the rigid counterpart of each of these
-   (``--no-counterparts`` drops them).  The original keeps its catalog label; every transformed
-   instance carries the label of ``transforms.LABEL_RULE`` (``label_source`` says which).
+   (``--no-counterparts`` drops them).  The original keeps its catalog label; a transformed
+   instance keeps it too unless the transform changes the label ``transforms.LABEL_RULE`` gives
+   (then it carries the rule's new label; ``label_source`` says which).
 2. per variant, ``--views`` placements (``tasks.ResetDistribution``: +-5 cm, +-30 deg yaw): the
    object is put in the cell (:class:`~flatlab_lerobot.sim.core.FlatLabSim`, arms resting at
    home), settles for ``--settle`` s, and the object-only cloud is rendered from ``--cameras``
@@ -25,7 +26,7 @@ folder and renamed when complete:
 
 * ``clouds.npy`` (N, 2048, 3) float32: the normalized clouds.
 * ``index.parquet``: one row per cloud, in cloud order: ``label`` (0/1/2) and ``strategy``
-  (A/B/C), ``label_source`` (catalog | rule), ``catalog_strategy`` (the base object's label),
+  (A/B/C), ``label_source`` (catalog | catalog_kept | rule), ``catalog_strategy`` (the base object's label),
   ``object_id`` (with its transformation: ``fabric_cotton@s0.5@rigid``), ``base_object_id``,
   ``category``, ``split``, ``material``, ``shape``, ``transform`` (original | scale | rigid |
   scale+rigid), ``scale`` (1.0 for the original size), ``rigid_counterpart``, ``view``, ``seed``

@@ -9,12 +9,12 @@ ended up.
 
 * :mod:`.world`: the expert's view of the scene and what the strategies share;
 * :mod:`.a_push_to_edge`, :mod:`.b_squeeze`, :mod:`.c_fold_pinch`: one module per strategy;
-* :mod:`.registry`: :data:`STRATEGIES`, label -> stages;
+* :mod:`.registry`: :data:`STRATEGIES`, label -> stages, and :data:`STAGE_SPECS`, their primitive names and timing;
 * :mod:`.expert`: :class:`Expert`, kinematics + IK + the episode generator.
 """
 
 from flatlab_lerobot.strategies.expert import Expert
-from flatlab_lerobot.strategies.registry import STRATEGIES
-from flatlab_lerobot.strategies.world import World
+from flatlab_lerobot.strategies.registry import STAGE_SPECS, STRATEGIES
+from flatlab_lerobot.strategies.world import StageSpec, World
 
-__all__ = ["STRATEGIES", "Expert", "World"]
+__all__ = ["STAGE_SPECS", "STRATEGIES", "Expert", "StageSpec", "World"]

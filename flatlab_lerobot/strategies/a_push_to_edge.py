@@ -7,7 +7,9 @@ import numpy as np
 
 from flatlab_lerobot.primitives import ArmMotion, Primitive
 from flatlab_lerobot.sim.robot import tcp_rotation
-from flatlab_lerobot.strategies.world import DOWN, FINGER_TIP_BELOW_TCP, World, hold, hold_all, shifted, vec
+from flatlab_lerobot.strategies.world import (
+    DOWN, FINGER_TIP_BELOW_TCP, HOLD, StageSpec, World, hold, hold_all, shifted, vec,
+)  # fmt: skip
 
 # ---------------------------------------------------------------------------- strategy A
 A_OVERHANG = 0.085  # how far the object is pushed past the edge (m) ...
@@ -20,8 +22,20 @@ A_APPROACH_LEN = 0.12  # the horizontal approach starts this far out, so the des
 A_PRESS_DEPTH = 0.001  # press target below the object top (m): the arm is stiff
 A_SLIDE_GAIN = 1.3  # the object lags the finger: slide this many times the missing distance ...
 A_SLIDE_EXTRA = 0.05  # ... but at most this much further (m)
-A_PASSES = 3  # push passes at most; a pass is skipped once the overhang is within 1 cm of the target
+A_PASSES = 3  # push passes at most; a pass is skipped once the overhang is within A_SKIP_MISSING of the target
+A_SKIP_MISSING = 0.01  # m
+A_SKIP_HOLD = 0.1  # a skipped pass's stages each hold this long (s)
 A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 0/10)
+
+# each stage's primitive and timing (duration of the Cartesian motion, transit to its start)
+S_TOUCH = StageSpec("touch", 0.6, transit=1.5)
+S_PRESS = StageSpec("press", 0.4)
+S_SLIDE = StageSpec("slide", 0.5, speed=0.08, along="xy")  # max(0.5 s, distance / 8 cm/s)
+S_RELEASE = StageSpec("release", 0.8)
+S_PREAPPROACH = StageSpec("move", 0.2, transit=2.0)
+S_APPROACH = StageSpec("touch", 1.2, transit=1.0)
+S_GRASP = StageSpec("grasp", 0.6)
+S_LIFT = StageSpec("lift", 1.6, speed=0.1, along="z")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
 
 
 def _a_arm(world: World, ctx: dict) -> str:
@@ -43,39 +57,56 @@ def _a_press_pose(world: World):
     return p, tcp_rotation(DOWN, [0.0, 1.0, 0.0])
 
 
+def overhang_target(length_x: float) -> float:
+    """How far an object ``length_x`` m long along x should stick out past the edge (m): A_OVERHANG,
+    but at most A_OVERHANG_FRAC of its length, so a small object keeps its centre of mass on the table."""
+    return min(A_OVERHANG, A_OVERHANG_FRAC * length_x)
+
+
+def overhang_missing(max_x: float, length_x: float, edge_x: float) -> float:
+    """How much further an object whose footprint reaches ``max_x`` and spans ``length_x`` along x
+    must go past the edge at ``edge_x`` (m); 0 when it overhangs enough.  The expert measures the
+    footprint from the privileged state; the learned policy from the object cloud."""
+    return max(0.0, edge_x + overhang_target(length_x) - max_x)
+
+
+def pass_needed(missing: float) -> bool:
+    """Whether a later push pass runs (it is skipped once the overhang is within A_SKIP_MISSING)."""
+    return missing >= A_SKIP_MISSING
+
+
 def _a_overhang_target(w: World) -> float:
-    """How far the object should stick out past the edge (m): A_OVERHANG, but at most
-    A_OVERHANG_FRAC of its length along x, so a small object keeps its centre of mass on the table."""
-    return min(A_OVERHANG, A_OVERHANG_FRAC * w.length_x())
+    return overhang_target(w.length_x())
 
 
 def _a_overhang_missing(w: World) -> float:
-    """How much further the object must go past the edge (m); 0 when it overhangs enough."""
-    return max(0.0, w.edge_x + _a_overhang_target(w) - w.max_x())
+    return overhang_missing(w.max_x(), w.length_x(), w.edge_x)
 
 def a_touch(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     # A later push pass is skipped (0.1 s holds) once an earlier one pushed far enough.
-    ctx["skipping"] = ctx.get("pass", 0) >= 1 and _a_overhang_missing(w) < 0.01
+    ctx["skipping"] = ctx.get("pass", 0) >= 1 and not pass_needed(_a_overhang_missing(w))
     if ctx["skipping"]:
-        return hold_all(poses, grip, 0.1)
+        return hold_all(poses, grip, A_SKIP_HOLD)
     p, R = _a_press_pose(w)
     above = (p + vec(0, 0, 0.06), R)
-    return Primitive("touch", {arm: ArmMotion(above, (p + vec(0, 0, A_PRESS_DEPTH + 0.002), R), (A_PRESS_OPEN,) * 2)}, 0.6, transit=1.5)
+    motion = ArmMotion(above, (p + vec(0, 0, A_PRESS_DEPTH + 0.002), R), (A_PRESS_OPEN,) * 2)
+    return S_TOUCH.make({arm: motion})
 
 
 def a_press(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     if ctx["skipping"]:
-        return hold_all(poses, grip, 0.1)
+        return hold_all(poses, grip, A_SKIP_HOLD)
     start = poses[arm]
-    return Primitive("press", {arm: ArmMotion(start, shifted(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (A_PRESS_OPEN,) * 2)}, 0.4)
+    motion = ArmMotion(start, shifted(start, (0, 0, -A_PRESS_DEPTH - 0.002)), (A_PRESS_OPEN,) * 2)
+    return S_PRESS.make({arm: motion})
 
 
 def a_slide(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     if ctx["skipping"]:
-        return hold_all(poses, grip, 0.1)
+        return hold_all(poses, grip, A_SKIP_HOLD)
     missing = _a_overhang_missing(w)
     # Sliding further than missing makes up for the object lagging the finger, but a light object
     # follows the finger fully and a 5-cm overshoot pushed CDs, coasters and saucers off the table:
@@ -84,16 +115,18 @@ def a_slide(ex, w: World, poses, grip, ctx) -> Primitive:
     spare = 0.5 * w.length_x() - _a_overhang_target(w)
     dist = min(missing * A_SLIDE_GAIN, missing + min(A_SLIDE_EXTRA, 0.5 * spare))
     start = poses[arm]
-    return Primitive("slide", {arm: ArmMotion(start, shifted(start, (dist, 0, 0)), (A_PRESS_OPEN,) * 2)}, max(0.5, dist / 0.08))
+    motion = ArmMotion(start, shifted(start, (dist, 0, 0)), (A_PRESS_OPEN,) * 2)
+    return S_SLIDE.make({arm: motion}, dist)
 
 
 def a_release(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_arm(w, ctx)
     ctx["pass"] = ctx.get("pass", 0) + 1
     if ctx["skipping"]:
-        return hold_all(poses, grip, 0.1)
+        return hold_all(poses, grip, A_SKIP_HOLD)
     start = poses[arm]
-    return Primitive("release", {arm: ArmMotion(start, shifted(start, (0, 0, 0.12)), (A_PRESS_OPEN, A_OPEN))}, 0.8)
+    motion = ArmMotion(start, shifted(start, (0, 0, 0.12)), (A_PRESS_OPEN, A_OPEN))
+    return S_RELEASE.make({arm: motion})
 
 
 def _a_grasp_geometry(w: World, ctx: dict):
@@ -134,18 +167,19 @@ def a_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     if pusher != arm:  # the pushing hand backs off towards its own base, out of the grasping arm's way
         back = poses[pusher][0] + vec(-0.05, 0.15 if pusher == "left" else -0.15, 0.05)
         motions[pusher] = ArmMotion((back, poses[pusher][1]), (back, poses[pusher][1]), (grip[pusher],) * 2)
-    return Primitive("move", motions, 0.2, transit=2.0)
+    return S_PREAPPROACH.make(motions)
 
 
 def a_approach(ex, w: World, poses, grip, ctx) -> Primitive:
     arm, end, a = _a_grasp_geometry(w, ctx)
     R = tcp_rotation(a, [0.0, 0.0, 1.0])
-    return Primitive("touch", {arm: ArmMotion((end - A_APPROACH_LEN * a, R), (end, R), (A_OPEN, A_OPEN))}, 1.2, transit=1.0)
+    motion = ArmMotion((end - A_APPROACH_LEN * a, R), (end, R), (A_OPEN, A_OPEN))
+    return S_APPROACH.make({arm: motion})
 
 
 def a_grasp(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_grasp_arm(w, ctx)
-    return Primitive("grasp", {arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))}, 0.6)
+    return S_GRASP.make({arm: ArmMotion(poses[arm], poses[arm], (A_OPEN, 0.0))})
 
 
 A_LIFT = 0.16  # lift height of a rigid object (m)
@@ -156,9 +190,12 @@ def a_lift(ex, w: World, poses, grip, ctx) -> Primitive:
     arm = _a_grasp_arm(w, ctx)
     start = poses[arm]
     dz = max(A_LIFT, float(max(w.size[0], w.size[1])) + A_SHEET_LIFT_MARGIN) if w.deformable else A_LIFT
-    return Primitive("lift", {arm: ArmMotion(start, shifted(start, (0.06, 0, dz)), (0.0, 0.0))}, 1.6 * dz / A_LIFT)
+    return S_LIFT.make({arm: ArmMotion(start, shifted(start, (0.06, 0, dz)), (0.0, 0.0))}, dz)
 
 
 
 STAGES = (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_approach, a_grasp, a_lift, hold)
 """Strategy A's stages: up to A_PASSES push passes, then the side grasp of the overhang."""
+SPECS = (S_TOUCH, S_PRESS, S_SLIDE, S_RELEASE) * A_PASSES + (S_PREAPPROACH, S_APPROACH, S_GRASP, S_LIFT, HOLD)
+"""Each stage's :class:`StageSpec`: primitive name and timing (a skipped pass holds A_SKIP_HOLD instead)."""
+PASS_STAGES = 4  # stages per push pass: touch, press, slide, release

@@ -6,11 +6,15 @@ import numpy as np
 
 from flatlab_lerobot.primitives import ArmMotion, Primitive
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, tcp_rotation
-from flatlab_lerobot.strategies.world import DOWN, FINGER_HALF_WIDTH, World, hold, shifted, vec
+from flatlab_lerobot.strategies.world import DOWN, FINGER_HALF_WIDTH, HOLD, StageSpec, World, hold, shifted, vec
 
 # ---------------------------------------------------------------------------- strategy B
 B_OPEN = GRIPPER_MAX_WIDTH  # open fingers: two contact patches far apart resist tilting
 B_SQUEEZE = 0.025  # how far each hand is commanded past the touched face (m)
+S_PREAPPROACH = StageSpec("move", 0.2, transit=2.0)
+S_TOUCH = StageSpec("touch", 1.0, transit=0.8)
+S_SQUEEZE = StageSpec("squeeze", 0.6)
+S_LIFT = StageSpec("lift", 1.6)
 
 
 def _b_targets(w: World, inset: float, dz: float = 0.0):
@@ -37,18 +41,18 @@ def b_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     for a, (p, R) in _b_targets(w, -0.04).items():
         above = (vec(p[0], p[1], max(p[2], top)), R)
         motions[a] = ArmMotion(above, above, (B_OPEN, B_OPEN))
-    return Primitive("move", motions, 0.2, transit=2.0)
+    return S_PREAPPROACH.make(motions)
 
 
 def b_touch(ex, w: World, poses, grip, ctx) -> Primitive:
     far, near = _b_targets(w, -0.04), _b_targets(w, 0.0)
-    return Primitive("touch", {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}, 1.0, transit=0.8)
+    motions = {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}
+    return S_TOUCH.make(motions)
 
 
 def b_squeeze(ex, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive(
-        "squeeze", {a: ArmMotion(poses[a], shifted(poses[a], _b_inward(w, a) * B_SQUEEZE), (B_OPEN, B_OPEN)) for a in ARMS}, 0.6
-    )
+    motions = {a: ArmMotion(poses[a], shifted(poses[a], _b_inward(w, a) * B_SQUEEZE), (B_OPEN, B_OPEN)) for a in ARMS}
+    return S_SQUEEZE.make(motions)
 
 
 def _b_inward(w: World, arm: str) -> np.ndarray:
@@ -57,9 +61,12 @@ def _b_inward(w: World, arm: str) -> np.ndarray:
 
 
 def b_lift(ex, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive("lift", {a: ArmMotion(poses[a], shifted(poses[a], (0, 0, 0.16)), (B_OPEN, B_OPEN)) for a in ARMS}, 1.6)
+    motions = {a: ArmMotion(poses[a], shifted(poses[a], (0, 0, 0.16)), (B_OPEN, B_OPEN)) for a in ARMS}
+    return S_LIFT.make(motions)
 
 
 
 STAGES = (b_preapproach, b_touch, b_squeeze, b_lift, hold)
 """Strategy B's stages."""
+SPECS = (S_PREAPPROACH, S_TOUCH, S_SQUEEZE, S_LIFT, HOLD)
+"""Each stage's :class:`StageSpec`: primitive name and timing."""

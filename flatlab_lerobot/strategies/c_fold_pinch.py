@@ -8,7 +8,7 @@ import numpy as np
 
 from flatlab_lerobot.primitives import ArmMotion, Primitive
 from flatlab_lerobot.sim.robot import GRIPPER_MAX_WIDTH, tcp_rotation
-from flatlab_lerobot.strategies.world import DOWN, FINGER_TIP_BELOW_TCP, World, hold, shifted, vec
+from flatlab_lerobot.strategies.world import DOWN, FINGER_TIP_BELOW_TCP, HOLD, StageSpec, World, hold, shifted, vec
 
 # ---------------------------------------------------------------------------- strategy C
 C_PRESS_TIP_Z = 0.001  # finger tips this far above the table while pressing cloth (m)
@@ -21,6 +21,14 @@ C_TILT_LIFT = 0.01  # a leaning finger's lower edge is about this far (m) times 
 C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward (m), clear of the pinching hand ...
 C_LEFT_OFF, C_LEFT_OFF_UP = 0.05, 0.02  # ... first this far outward and up (m), off the ridge's wall, ...
 C_LEFT_UP = 0.15  # ... then straight up to this height above the press (m), then outward
+S_TOUCH = StageSpec("touch", 0.8, transit=2.0)
+S_SQUEEZE = StageSpec("squeeze", 1.6)
+S_RELEASE = StageSpec("release", 0.6)
+S_LEFT_AWAY = StageSpec("move", 0.6)
+S_LEFT_OUT = StageSpec("move", 0.5)
+S_STRADDLE = StageSpec("press", 0.8, transit=1.5)
+S_PINCH = StageSpec("grasp", 0.8)
+S_LIFT = StageSpec("lift", 2.0, speed=0.16, along="z")  # 2 s per C_LIFT (32 cm) of rise, at least 2 s
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float):
@@ -38,11 +46,9 @@ def _c_pose(w: World, s: float, dist: float, dz: float):
 def c_touch(ex, w: World, poses, grip, ctx) -> Primitive:
     _, half = w.squeeze_axis()
     d = C_START_FRAC * 2 * half
-    return Primitive(
-        "touch",
-        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (C_PRESS_OPEN,) * 2) for a, s in (("left", 1), ("right", -1))},
-        0.8,
-        transit=2.0,
+    sides = (("left", 1), ("right", -1))
+    return S_TOUCH.make(
+        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (C_PRESS_OPEN,) * 2) for a, s in sides}
     )
 
 
@@ -53,7 +59,7 @@ def c_squeeze(ex, w: World, poses, grip, ctx) -> Primitive:
         start = poses[a]
         end_xy = w.pos + s * C_END_HALF_GAP * u
         motions[a] = ArmMotion(start, (vec(end_xy[0], end_xy[1], start[0][2]), start[1]), (C_PRESS_OPEN,) * 2)
-    return Primitive("squeeze", motions, 1.6)
+    return S_SQUEEZE.make(motions)
 
 
 def c_release_both(ex, w: World, poses, grip, ctx) -> Primitive:
@@ -62,13 +68,12 @@ def c_release_both(ex, w: World, poses, grip, ctx) -> Primitive:
     :func:`c_left_away`, :func:`c_left_out`): backing away 15 cm up and out in one move, the tips
     dragged a heavy towel's wall up with them and flattened the fold (seen in frames)."""
     u, _ = w.squeeze_axis()
-    return Primitive(
-        "release",
+    off = C_LEFT_OFF * u + vec(0, 0, C_LEFT_OFF_UP)
+    return S_RELEASE.make(
         {
             "right": ArmMotion(poses["right"], shifted(poses["right"], (0, 0, 0.06)), (C_PRESS_OPEN, C_PINCH_OPEN)),
-            "left": ArmMotion(poses["left"], shifted(poses["left"], C_LEFT_OFF * u + vec(0, 0, C_LEFT_OFF_UP)), (C_PRESS_OPEN,) * 2),
-        },
-        0.6,
+            "left": ArmMotion(poses["left"], shifted(poses["left"], off), (C_PRESS_OPEN,) * 2),
+        }
     )
 
 
@@ -76,14 +81,16 @@ def c_left_away(ex, w: World, poses, grip, ctx) -> Primitive:
     """The left hand, off the ridge, rises straight up: moving outward while low, it carried a
     skirt's tall ridge away with it (seen in frames)."""
     rise = vec(0, 0, C_LEFT_UP - C_LEFT_OFF_UP)
-    return Primitive("move", {"left": ArmMotion(poses["left"], shifted(poses["left"], rise), (C_PRESS_OPEN,) * 2)}, 0.6)
+    motion = ArmMotion(poses["left"], shifted(poses["left"], rise), (C_PRESS_OPEN,) * 2)
+    return S_LEFT_AWAY.make({"left": motion})
 
 
 def c_left_out(ex, w: World, poses, grip, ctx) -> Primitive:
     """... then moves outward, clear of the pinching hand."""
     u, _ = w.squeeze_axis()
     out = (C_LEFT_AWAY - C_LEFT_OFF) * u
-    return Primitive("move", {"left": ArmMotion(poses["left"], shifted(poses["left"], out), (C_PRESS_OPEN,) * 2)}, 0.5)
+    motion = ArmMotion(poses["left"], shifted(poses["left"], out), (C_PRESS_OPEN,) * 2)
+    return S_LEFT_OUT.make({"left": motion})
 
 
 def c_straddle(ex, w: World, poses, grip, ctx) -> Primitive:
@@ -96,17 +103,13 @@ def c_straddle(ex, w: World, poses, grip, ctx) -> Primitive:
     z = w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
     start = (vec(centre[0], centre[1], z + 0.06), R)
     end = (vec(centre[0], centre[1], z), R)
-    return Primitive(
-        "press", {"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)}, 0.8, transit=1.5
-    )
+    left = ArmMotion.still(poses["left"], C_PRESS_OPEN)
+    return S_STRADDLE.make({"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": left})
 
 
 def c_pinch(ex, w: World, poses, grip, ctx) -> Primitive:
-    return Primitive(
-        "grasp",
-        {"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": ArmMotion.still(poses["left"], C_PRESS_OPEN)},
-        0.8,
-    )
+    left = ArmMotion.still(poses["left"], C_PRESS_OPEN)
+    return S_PINCH.make({"right": ArmMotion(poses["right"], poses["right"], (C_PINCH_OPEN, 0.0)), "left": left})
 
 
 C_LIFT = 0.32  # lift height of a pinched fold (m) ...
@@ -115,9 +118,12 @@ C_LIFT_MARGIN = 0.06  # ... at least the sheet's diagonal + this: a pinch near a
 
 def c_lift(ex, w: World, poses, grip, ctx) -> Primitive:
     dz = max(C_LIFT, float(np.hypot(w.size[0], w.size[1])) + C_LIFT_MARGIN)
-    return Primitive("lift", {"right": ArmMotion(poses["right"], shifted(poses["right"], (0, 0, dz)), (0.0, 0.0))}, 2.0 * dz / C_LIFT)
+    motion = ArmMotion(poses["right"], shifted(poses["right"], (0, 0, dz)), (0.0, 0.0))
+    return S_LIFT.make({"right": motion}, dz)
 
 
 
 STAGES = (c_touch, c_squeeze, c_release_both, c_left_away, c_left_out, c_straddle, c_pinch, c_lift, hold)
 """Strategy C's stages."""
+SPECS = (S_TOUCH, S_SQUEEZE, S_RELEASE, S_LEFT_AWAY, S_LEFT_OUT, S_STRADDLE, S_PINCH, S_LIFT, HOLD)
+"""Each stage's :class:`StageSpec`: primitive name and timing."""

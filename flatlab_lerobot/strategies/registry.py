@@ -10,3 +10,11 @@ STRATEGIES = {
     "C": c_fold_pinch.STAGES,
 }
 """Each strategy as its sequence of stages (each stage poses one primitive)."""
+
+STAGE_SPECS = {
+    "A": a_push_to_edge.SPECS,
+    "B": b_squeeze.SPECS,
+    "C": c_fold_pinch.SPECS,
+}
+"""Each strategy's stage specs (:class:`~flatlab_lerobot.strategies.world.StageSpec`: primitive name,
+duration, transit), aligned with :data:`STRATEGIES`."""

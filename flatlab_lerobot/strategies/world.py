@@ -20,6 +20,36 @@ DOWN = np.array([0.0, 0.0, -1.0])
 FINGER_TIP_BELOW_TCP = 0.007  # finger tips sit this far beyond the TCP along the approach (m)
 FINGER_HALF_WIDTH = 0.01  # half thickness of a finger along the hand x axis (m)
 
+
+@dataclass(frozen=True)
+class StageSpec:
+    """What a stage poses besides its poses: the ``primitive``'s name, ``transit`` s for the
+    joint-space move to its start pose and ``duration`` s for the Cartesian motion.  With ``speed``
+    (m/s), a motion whose length varies takes ``max(duration, length / speed)``, its length measured
+    ``along`` "xy" (horizontal) or "z" (rise).  One table per strategy (``SPECS`` beside its
+    ``STAGES``) serves the stage functions and the learned policy that executes predicted poses
+    under the expert's names and timing."""
+
+    primitive: str
+    duration: float
+    transit: float = 1.0
+    speed: float | None = None
+    along: str = "xy"
+
+    def seconds(self, length: float = 0.0) -> float:
+        """The Cartesian motion's duration for a motion ``length`` m long (s)."""
+        return self.duration if self.speed is None else max(self.duration, length / self.speed)
+
+    def for_motion(self, start_pos, end_pos) -> float:
+        """:meth:`seconds` of the straight motion ``start_pos`` -> ``end_pos``."""
+        d = np.asarray(end_pos, float) - np.asarray(start_pos, float)
+        length = float(d[2]) if self.along == "z" else float(np.linalg.norm(d[:2]))
+        return self.seconds(length)
+
+    def make(self, motions: dict, length: float = 0.0) -> Primitive:
+        """This stage's primitive of ``motions`` (arm -> :class:`ArmMotion`), ``length`` m long."""
+        return Primitive(self.primitive, motions, self.seconds(length), transit=self.transit)
+
 @dataclass
 class World:
     """The expert's view of the scene, parsed from ``environment_state``."""
@@ -115,6 +145,9 @@ def hold_all(poses, grip, duration: float) -> Primitive:
     return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, duration)
 
 
+HOLD = StageSpec("hold", 2.6)  # the final hold of every strategy
+
+
 def hold(ex, w: World, poses, grip, ctx) -> Primitive:
-    return hold_all(poses, grip, 2.6)
+    return hold_all(poses, grip, HOLD.seconds())
 

@@ -48,6 +48,8 @@ PRIMITIVE_DIM = len(STRATEGY_NAMES) + MAX_STAGES + len(PRIMITIVE_NAMES)
 OBS_POINTCLOUD = "observation.pointcloud"
 OBS_PRIMITIVE = "observation.primitive"
 OBS_TCP_STATE = "observation.tcp_state"
+OBS_OBJECT_CLOUD = "observation.object_pointcloud"
+FRAME_CENTERS = ("scene", "object")
 TCP_STATE_DIM = 8 * len(ARMS)
 
 ARM_FIELDS = (("active", 1), ("start_pos", 3), ("start_quat", 4), ("end_pos", 3), ("end_quat", 4),
@@ -98,6 +100,10 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     cond_dim: int = 64  # embedding of observation.primitive
     head_hidden: list[int] = field(default_factory=lambda: [256, 128])
     use_proprio: bool = True
+    # the model frame's origin: "scene" = the scene cloud's mean (paper App. B); "object" = the mean of
+    # the segmented object cloud (observation.object_pointcloud, what the strategy generator reads):
+    # poses are then predicted relative to the object, not to the table
+    frame_center: str = "scene"
     # loss
     lambda_pos: float = 10.0  # paper App. D: P-MSE minimal for lambda_pos 5-10 with lambda_rot 1
     lambda_rot: float = 1.0
@@ -123,6 +129,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
 
         if self.n_points < 16:
             bad("n_points", f"must be >= 16, got {self.n_points}")
+        if self.frame_center not in FRAME_CENTERS:
+            bad("frame_center", f"must be one of {FRAME_CENTERS}, got {self.frame_center!r}")
         n = len(self.sa_npoints)
         if n == 0 or not (len(self.sa_radii) == len(self.sa_nsamples) == len(self.sa_mlps) == n):
             bad("sa_npoints", "sa_npoints, sa_radii, sa_nsamples and sa_mlps need the same non-zero length")
@@ -173,6 +181,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
         need = {OBS_POINTCLOUD: None, OBS_PRIMITIVE: (PRIMITIVE_DIM,)}
         if self.use_proprio:
             need[OBS_TCP_STATE] = (TCP_STATE_DIM,)
+        if self.frame_center == "object":
+            need[OBS_OBJECT_CLOUD] = None
         for key, shape in need.items():
             ft = self.input_features.get(key)
             if ft is None:

@@ -23,6 +23,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     ARMS,
     GRASP_STAGE,
     MAX_STAGES,
+    OBS_OBJECT_CLOUD,
     OBS_POINTCLOUD,
     OBS_PRIMITIVE,
     OBS_TCP_STATE,
@@ -154,9 +155,21 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         reps = math.ceil(n / N)
         return cloud.repeat(1, reps, 1)[:, :n]
 
-    def _frame(self, cloud: Tensor) -> SceneFrame:
-        B = cloud.shape[0]
+    def _center(self, batch: dict[str, Tensor], cloud: Tensor) -> Tensor:
+        """(B, 3) origin of the model frame: the scene cloud's mean, or (``frame_center="object"``) the
+        mean of the object cloud's seen points (all-zero rows are unseen; none seen: the scene mean)."""
         c = cloud.mean(1)
+        if self.config.frame_center != "object":
+            return c
+        obj = batch[OBS_OBJECT_CLOUD].float()
+        seen = (obj.abs().sum(-1) > 0).float()  # (B, K)
+        n = seen.sum(1, keepdim=True)
+        c_obj = (obj * seen[..., None]).sum(1) / n.clamp(min=1.0)
+        return torch.where(n > 0, c_obj, c)
+
+    def _frame(self, cloud: Tensor, c: Tensor | None = None) -> SceneFrame:
+        B = cloud.shape[0]
+        c = cloud.mean(1) if c is None else c
         one, zero = cloud.new_ones(B), cloud.new_zeros(B)
         if self.training and self.config.augment:
             lo, hi = self.config.aug_scale
@@ -181,7 +194,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
     def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None):
         """-> (frame, per-arm predictions in the model frame)."""
         cloud = self._cloud(batch[OBS_POINTCLOUD].float())
-        frame = frame or self._frame(cloud)
+        frame = frame or self._frame(cloud, self._center(batch, cloud))
         x = frame.pos_in(cloud)
         if self.training and self.config.augment and self.config.aug_jitter_std > 0:
             x = x + self.config.aug_jitter_std * torch.randn_like(x)
@@ -279,7 +292,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         return self.predict_action_chunk(batch)[:, 0]
 
     @torch.no_grad()
-    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None) -> dict[str, dict]:
+    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None, object_cloud=None) -> dict[str, dict]:
         """The unified policy's call: one decision.
 
         scene_cloud: (N, 3) or (B, N, 3) world-frame scene cloud (crop + cameras as the primitive set).
@@ -287,6 +300,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         [stage_index]``, its primitive name); scalars, or sequences of length B.
         proprio: (16,) / (B, 16) per arm measured TCP pos (3), quat wxyz (4), finger opening (1);
         required when ``config.use_proprio``.
+        object_cloud: (K, 3) / (B, K, 3) world-frame segmented object cloud (env obs
+        ``object_pointcloud``); required when ``config.frame_center == "object"``, ignored otherwise.
         Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
         "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
         primitive commands the arm (A's pushing / grasping arm depends on where the object is)."""
@@ -310,6 +325,10 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                 raise ValueError("predict_poses: proprio (16,) is required (config.use_proprio=true)")
             pr = torch.as_tensor(np.array(proprio, np.float32), device=dev).reshape(B, TCP_STATE_DIM)
             batch[OBS_TCP_STATE] = pr
+        if self.config.frame_center == "object":
+            if object_cloud is None:
+                raise ValueError('predict_poses: object_cloud (K, 3) is required (config.frame_center="object")')
+            batch[OBS_OBJECT_CLOUD] = torch.as_tensor(np.array(object_cloud, np.float32), device=dev).reshape(B, -1, 3)
         out = {}
         for arm, p in zip(ARMS, self.predict_world(batch)):
             n = {k: v.cpu().numpy() for k, v in p.items()}

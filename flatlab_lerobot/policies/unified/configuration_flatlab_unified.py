@@ -1,0 +1,153 @@
+"""Config of the ``flatlab_unified`` policy type: the paper's unified FlatLab policy (§3, App. B) --
+a trained strategy generator (``flatlab_strategy``) and a trained action execution module
+(``flatlab_executor``) in one artifact, run per step inside ``select_action``.
+
+One folder (``config.json`` + ``model.safetensors`` + processor files, as ``save_pretrained`` writes)
+holds both sub-models: their configs are the nested fields ``generator`` and ``executor`` here, their
+weights the ``generator.*`` / ``executor.*`` entries of ``model.safetensors``.  ``flatlab unified-build``
+assembles it from two trained ``pretrained_model`` folders; ``--policy.path=<folder>`` reloads it
+(``lerobot-eval``, ``flatlab eval``), and ``push_to_hub`` pushes it like any LeRobot policy.
+
+Per episode and batch element (see :mod:`.modeling_flatlab_unified`): the strategy from the object
+cloud (or fixed by ``strategy``), then for each stage of that strategy -- the expert's stage list and
+primitive names (``strategies.STRATEGIES`` / ``STAGE_SPECS``) -- the executor's poses from the scene
+cloud observed when the stage starts, executed by the expert's primitive runner and IK with the
+expert's timing.
+
+``strategy``: ``learned`` (the generator chooses; the unified policy), or ``A`` / ``B`` / ``C`` for
+every object: ``A`` is the learned Slide baseline and ``B`` the learned Lift baseline of the paper's
+tables (the same executor, the strategy fixed).
+
+Inputs it reads (and keeps as its only ``input_features``): ``observation.state`` (16: joints +
+finger widths), ``observation.cell`` (7: table and arm-base calibration -> its kinematic model),
+``observation.pointcloud`` (scene, N x 3) and ``observation.object_pointcloud`` (K x 3).  It never
+reads ``observation.environment_state``.  No normalization: the sub-models normalize their own clouds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
+from lerobot.optim import AdamConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
+from flatlab_lerobot.policies import identity_normalization
+from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
+    ACTION_DIM as EXECUTOR_ACTION_DIM,
+    OBS_OBJECT_CLOUD,
+    OBS_PRIMITIVE,
+    OBS_TCP_STATE,
+    PRIMITIVE_DIM,
+    TCP_STATE_DIM,
+    FlatLabExecutorConfig,
+)
+from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
+from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES
+
+STRATEGY_CHOICES = ("learned", "A", "B", "C")
+INPUTS = (OBS_STATE, OBS_CELL, OBS_POINTCLOUD, OBS_OBJECT_POINTCLOUD)
+"""The only observations the policy reads."""
+STATE_DIM, CELL_DIM, ACTION_DIM = 16, 7, 16
+GENERATOR_INPUT = "observation.object_pointcloud"  # the generator must read the object cloud
+
+
+@PreTrainedConfig.register_subclass("flatlab_unified")
+@dataclass
+class FlatLabUnifiedConfig(PreTrainedConfig):
+    # the trained sub-models' configs (flatlab unified-build copies them from their pretrained_model folders)
+    generator: FlatLabStrategyConfig = field(default_factory=FlatLabStrategyConfig)
+    executor: FlatLabExecutorConfig = field(default_factory=FlatLabExecutorConfig)
+    # learned: the generator picks the strategy per episode; A / B / C: fixed (A = learned Slide, B = learned Lift)
+    strategy: str = "learned"
+    control_dt: float = 0.1  # s: must match the env's 1/fps
+    # strategy A: push passes at most (the expert's A_PASSES); a later pass runs only while the object
+    # cloud overhangs the table edge (observation.cell) by less than the expert's target
+    max_push_passes: int = A_PASSES
+    # an arm is commanded by a stage when the executor's "active" probability exceeds this; when no
+    # arm does, the more probable one (every trained sample commands at least one moving arm)
+    active_threshold: float = 0.5
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.strategy not in STRATEGY_CHOICES:
+            raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
+        if not 1 <= int(self.max_push_passes) <= A_PASSES:
+            raise ValueError(f"--policy.max_push_passes: must be in [1, {A_PASSES}], got {self.max_push_passes!r}")
+        if not 0.0 < self.active_threshold < 1.0:
+            raise ValueError(f"--policy.active_threshold: must be in (0, 1), got {self.active_threshold!r}")
+        if not 0.0 < self.control_dt <= 1.0:
+            raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
+        if self.generator.input_key != GENERATOR_INPUT:
+            raise ValueError(
+                f"--policy.generator.input_key={self.generator.input_key!r}: the unified policy feeds the generator "
+                f"the env's object cloud ({GENERATOR_INPUT!r}); ablations A-7 / A-8 cannot be used here"
+            )
+
+    @property
+    def observation_delta_indices(self) -> None:
+        return None
+
+    @property
+    def action_delta_indices(self) -> None:
+        return None
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(lr=0.0)
+
+    def get_scheduler_preset(self) -> None:
+        return None
+
+    def validate_features(self) -> None:
+        """Keep :data:`INPUTS` as the only input features (so ``observation.environment_state`` is no
+        feature of the policy) and check their shapes and the joint action (16,)."""
+        feats = self.input_features or {}
+        if feats:
+            missing = [k for k in INPUTS if k not in feats]
+            if missing:
+                raise ValueError(
+                    f"flatlab_unified needs input features {missing} (have {sorted(feats)}); the env gives the clouds "
+                    "with --env.obs_pointcloud=true"
+                )
+            self.input_features = {k: feats[k] for k in INPUTS}
+            for key, dim in ((OBS_STATE, STATE_DIM), (OBS_CELL, CELL_DIM)):
+                if tuple(self.input_features[key].shape) != (dim,):
+                    raise ValueError(f"flatlab_unified: {key} has shape {tuple(self.input_features[key].shape)}, "
+                                     f"expected ({dim},)")  # fmt: skip
+            for key in (OBS_POINTCLOUD, OBS_OBJECT_POINTCLOUD):
+                shape = tuple(self.input_features[key].shape)
+                if len(shape) != 2 or shape[1] != 3:
+                    raise ValueError(f"flatlab_unified: {key} has shape {shape}, expected (N, 3)")
+        act = (self.output_features or {}).get(ACTION)
+        if act is not None and tuple(act.shape) != (ACTION_DIM,):
+            raise ValueError(
+                f"flatlab_unified outputs joint targets ({ACTION_DIM},), the env wants {tuple(act.shape)}: "
+                "use --env.action_mode=joint"
+            )
+
+    def fill_sub_features(self) -> None:
+        """Give a sub-config without features (a policy made from scratch, not by ``flatlab
+        unified-build``) the features it would have been trained on, sized like this policy's clouds."""
+        cloud = self.input_features.get(OBS_POINTCLOUD)
+        obj = self.input_features.get(OBS_OBJECT_POINTCLOUD)
+        n = tuple(cloud.shape) if cloud is not None else (max(self.executor.n_points, 16), 3)
+        k = tuple(obj.shape) if obj is not None else (256, 3)
+        if not self.executor.input_features:
+            self.executor.input_features = {
+                OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, n),
+                OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (PRIMITIVE_DIM,)),
+                OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (TCP_STATE_DIM,)),
+                OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, k),
+            }
+        if not self.executor.output_features:
+            self.executor.output_features = {ACTION: PolicyFeature(FeatureType.ACTION, (EXECUTOR_ACTION_DIM,))}
+        if not self.generator.input_features:
+            self.generator.input_features = {GENERATOR_INPUT: PolicyFeature(FeatureType.STATE, k)}
+        if not self.generator.output_features:
+            self.generator.output_features = {ACTION: PolicyFeature(FeatureType.ACTION, (3,))}

@@ -1,0 +1,277 @@
+"""``FlatLabUnifiedPolicy``: the learned strategy generator and action execution module run per step,
+one state machine per batch element (as ``flatlab_scripted`` runs the scripted expert).
+
+Per episode of batch element ``i``, on what the robot observes only:
+
+1. **strategy** (first step): argmax of the generator on ``observation.object_pointcloud``
+   (``FlatLabStrategyPolicy.predict_strategy``: its own centring / unit-sphere scaling / size
+   embedding), unless ``config.strategy`` fixes it.
+2. **each stage** ``k`` of ``strategies.STRATEGIES[strategy]``, when the previous one has finished:
+   the executor's poses from the scene cloud observed *now* (``observation.pointcloud``), the object
+   cloud (the executor's frame centre) and the proprioception -- per arm the TCP pose by forward
+   kinematics of the observed joints in the cell of ``observation.cell`` (``Expert.fk``) and the
+   observed finger opening -- conditioned on (strategy, ``k``, the stage's primitive name from
+   ``strategies.STAGE_SPECS``), exactly the encoding the primitive set was exported with.
+3. the stage becomes a :class:`~flatlab_lerobot.primitives.Primitive`: ``ArmMotion(start, end,
+   gripper)`` for each arm whose predicted ``active`` probability exceeds ``config.active_threshold``
+   (the more probable arm when none does); the other arm holds still.  Its duration and transit are
+   the expert's for that stage (``StageSpec``: slides and lifts scale with the predicted motion's
+   length as the expert's do).  The expert's :class:`~flatlab_lerobot.primitives.PrimitiveRunner`
+   (joint-space transit to the start, then a Cartesian line with IK at every control step, on
+   commanded joints as the expert keeps them) turns it into joint targets.
+4. strategy A's later push passes: pass ``p >= 1`` runs only while the object still needs to go
+   further past the edge by the expert's rule (``a_push_to_edge.overhang_missing`` /
+   ``pass_needed``), measured on the **object cloud** (its largest x and its extent along x) against
+   the table edge of ``observation.cell``; a skipped pass's four stages are not executed (the
+   primitive set drops them: no arm moves in them), and at most ``config.max_push_passes`` run.
+   Which arm pushes / grasps comes from the executor's ``active`` head.
+5. the final ``hold`` stage (never a training sample: no arm moves) holds still for the expert's
+   2.6 s; then the last action is repeated.
+
+``strategies`` / ``stages`` / ``stage_indices`` expose, per batch element, the chosen strategy (``flatlab
+eval`` fills column S from it), the primitive the last action belongs to ("move" during a transit) and
+the stage index.  ``observation.environment_state`` is never read: only the four inputs above are
+taken out of the batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import OBS_STATE
+from torch import Tensor
+
+from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
+from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
+from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
+from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
+from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
+from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
+from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
+from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES, PASS_STAGES, overhang_missing, pass_needed
+
+
+@dataclass
+class Observed:
+    """One batch element's observation, as the policy reads it (nothing else reaches the state machine)."""
+
+    state: np.ndarray  # (16,) per arm 7 joints + finger opening
+    cell: np.ndarray  # (7,) calibration
+    cloud: np.ndarray  # (N, 3) scene cloud, world frame
+    object_cloud: np.ndarray  # (K, 3) object cloud, world frame (zeros: not seen)
+
+    @property
+    def q14(self) -> np.ndarray:
+        return np.r_[self.state[0:7], self.state[8:15]]
+
+    @property
+    def fingers(self) -> dict[str, float]:
+        return {a: float(self.state[8 * i + 7]) for i, a in enumerate(ARMS)}
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    """wxyz, w >= 0 (the primitive set's convention)."""
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.asarray(R, float).reshape(-1))
+    return -q if q[0] < 0 else q
+
+
+def _rotmat(q) -> np.ndarray:
+    q = np.asarray(q, float)
+    q = q / max(np.linalg.norm(q), 1e-12)
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, q)
+    return R.reshape(3, 3)
+
+
+def object_footprint_x(object_cloud: np.ndarray) -> tuple[float, float] | None:
+    """(largest x, extent along x) of the seen object points (all-zero rows are unseen); None if none."""
+    pts = np.asarray(object_cloud, float).reshape(-1, 3)
+    pts = pts[np.abs(pts).sum(1) > 0]
+    if not len(pts):
+        return None
+    return float(pts[:, 0].max()), float(pts[:, 0].max() - pts[:, 0].min())
+
+
+class _Episode:
+    """One batch element's episode: the strategy, the stage being executed and the commanded joints."""
+
+    def __init__(self, policy: FlatLabUnifiedPolicy, expert, strategy: str | None):
+        self.policy, self.expert = policy, expert
+        self.strategy = strategy  # None until the first observation (learned)
+        self.index = -1  # stage index in STRATEGIES[strategy]
+        self.stage: str | None = None  # primitive name of the last action ("move": a transit)
+        self.q: np.ndarray | None = None  # commanded arm joints (14,)
+        self.grip: dict[str, float] = {}
+        self.last: np.ndarray | None = None
+        self.actions = None
+        self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
+
+    def act(self, obs: Observed) -> np.ndarray:
+        if self.q is None:
+            self.q, self.grip = obs.q14.copy(), obs.fingers
+            self.last = joint_action(self.q, self.grip)
+            if self.strategy is None:
+                self.strategy = self.policy.choose_strategy(obs.object_cloud)
+        n_stages = len(STRATEGIES[self.strategy])
+        while True:
+            if self.actions is not None:
+                step = next(self.actions, None)
+                if step is not None:
+                    self.stage, self.last = step
+                    return self.last
+                self.actions = None
+                self.q, self.grip = self.expert.runner.q.copy(), dict(self.expert.runner.grip)
+            if self.index + 1 >= n_stages:
+                self.stage = "hold"
+                return self.last
+            self.index += 1
+            if self._skip_pass(obs):
+                continue
+            self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip)
+
+    # -------------------------------------------------------------- decisions from observations
+    def _skip_pass(self, obs: Observed) -> bool:
+        """Strategy A at a later pass's first stage: skip the whole pass (and advance past it) when the
+        object cloud already overhangs the edge enough, or when ``max_push_passes`` have run."""
+        p = self.index // PASS_STAGES
+        if self.strategy != "A" or self.index % PASS_STAGES or not 1 <= p < A_PASSES:
+            return False
+        foot = object_footprint_x(obs.object_cloud)
+        edge_x = float(obs.cell[1]) / 2  # table depth / 2: the usable edge (CellConfig.edge_x)
+        missing = None if foot is None else overhang_missing(foot[0], foot[1], edge_x)
+        skip = p >= self.policy.config.max_push_passes or (missing is not None and not pass_needed(missing))
+        self.log.append({"index": self.index, "pass": p, "missing": missing, "skipped": bool(skip)})
+        if skip:
+            self.index += PASS_STAGES - 1
+        return skip
+
+    def _primitive(self, obs: Observed) -> Primitive:
+        spec = STAGE_SPECS[self.strategy][self.index]
+        if self.index == len(STRATEGIES[self.strategy]) - 1:  # the final hold: no arm moves
+            self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
+            return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
+        poses = self.policy.executor.predict_poses(
+            obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud
+        )
+        thr = self.policy.config.active_threshold
+        prob = {a: float(poses[a]["active"][0]) for a in ARMS}
+        arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
+        motions, duration = {}, 0.0
+        for a in arms:
+            (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
+            g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
+            motions[a] = ArmMotion((p0[0].astype(float), _rotmat(q0[0])), (p1[0].astype(float), _rotmat(q1[0])), (g0, g1))
+            duration = max(duration, spec.for_motion(p0[0], p1[0]))
+        self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
+                         "duration": duration})  # fmt: skip
+        return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _proprio(self, obs: Observed) -> np.ndarray:
+        """(16,) per arm TCP position, quaternion wxyz (forward kinematics of the observed joints) and
+        finger opening: the executor's ``observation.tcp_state``."""
+        fk = self.expert.fk(obs.q14)
+        fingers = obs.fingers
+        return np.concatenate([np.r_[fk[a][0], _quat(fk[a][1]), fingers[a]] for a in ARMS]).astype(np.float32)
+
+
+class FlatLabUnifiedPolicy(PreTrainedPolicy):
+    config_class = FlatLabUnifiedConfig
+    name = "flatlab_unified"
+
+    def __init__(self, config: FlatLabUnifiedConfig, dataset_stats=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        config.fill_sub_features()
+        self.config = config
+        self.generator = FlatLabStrategyPolicy(config.generator)
+        self.executor = FlatLabExecutorPolicy(config.executor)
+        self._experts: dict = {}
+        self._episodes: list[_Episode] | None = None
+
+    # ------------------------------------------------------------------ lerobot API
+    def get_optim_params(self) -> dict:
+        return self.parameters()
+
+    def reset(self):
+        self._episodes = None
+
+    @property
+    def strategies(self) -> list[str | None]:
+        """Per batch element, the strategy of the current episode (``flatlab eval``'s column S)."""
+        return [e.strategy for e in self._episodes or []]
+
+    @property
+    def stages(self) -> list[str | None]:
+        """Per batch element, the primitive the last action belongs to ("move": a joint-space transit)."""
+        return [e.stage for e in self._episodes or []]
+
+    @property
+    def stage_indices(self) -> list[int]:
+        """Per batch element, the stage index in ``strategies.STRATEGIES[strategy]`` (-1: not started)."""
+        return [e.index for e in self._episodes or []]
+
+    @property
+    def decisions(self) -> list[list[dict]]:
+        """Per batch element, what each stage decided (arms, active probabilities, skipped passes)."""
+        return [list(e.log) for e in self._episodes or []]
+
+    def _expert(self, i: int, cell: np.ndarray):
+        """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell; built
+        once per (element, cell) -- building compiles a MuJoCo model -- and never shared (it holds IK state)."""
+        from flatlab_lerobot.sim.scene import CellConfig
+        from flatlab_lerobot.strategies import Expert
+
+        key = (i, tuple(np.round(np.asarray(cell, np.float64), 6)))
+        if key not in self._experts:
+            self._experts[key] = Expert(CellConfig.from_calibration(key[1]), self.config.control_dt)
+        return self._experts[key]
+
+    @torch.no_grad()
+    def choose_strategy(self, object_cloud: np.ndarray) -> str:
+        """The generator's strategy (A/B/C) for one object cloud (K, 3)."""
+        dev = next(self.generator.parameters()).device
+        x = torch.as_tensor(np.asarray(object_cloud, np.float32), device=dev)[None]
+        return self.generator.predict_strategy({GENERATOR_INPUT: x})[0]
+
+    @staticmethod
+    def observed(batch: dict[str, Tensor]) -> list[Observed]:
+        """The batch's per-element observations: the four inputs the policy reads, and nothing else."""
+
+        def arr(key: str) -> np.ndarray:
+            if key not in batch:
+                raise KeyError(f"flatlab_unified: the batch has no {key!r}; the env must give it "
+                               "(--env.obs_pointcloud=true for the clouds)")  # fmt: skip
+            return batch[key].detach().cpu().numpy().astype(np.float64)
+
+        state = arr(OBS_STATE)
+        if state.ndim == 1:
+            state = state[None]
+        b = len(state)
+        cell = arr(OBS_CELL).reshape(b, -1)
+        cloud = arr(OBS_POINTCLOUD).reshape(b, -1, 3)
+        obj = arr(OBS_OBJECT_POINTCLOUD).reshape(b, -1, 3)
+        return [Observed(state[i], cell[i], cloud[i], obj[i]) for i in range(b)]
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        obs = self.observed(batch)
+        if self._episodes is None or len(self._episodes) != len(obs):
+            fixed = None if self.config.strategy == "learned" else self.config.strategy
+            self._episodes = [_Episode(self, self._expert(i, o.cell), fixed) for i, o in enumerate(obs)]
+        actions = np.stack([ep.act(o) for ep, o in zip(self._episodes, obs)])
+        return torch.as_tensor(actions, dtype=torch.float32, device=batch[OBS_STATE].device)
+
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        return self.select_action(batch).unsqueeze(1)
+
+    def forward(self, batch: dict[str, Tensor]):
+        raise NotImplementedError(
+            "flatlab_unified is assembled from trained sub-models, not trained itself: train the generator "
+            "(--policy.type=flatlab_strategy) and the executor (--policy.type=flatlab_executor) with lerobot-train, "
+            "then `flatlab unified-build --generator ... --executor ... --out ...`"
+        )

@@ -1,0 +1,352 @@
+"""``flatlab_unified``: a tiny artifact (untrained tiny sub-models, built by ``flatlab unified-build``)
+runs episodes through the real ``lerobot-eval`` and ``flatlab eval``; its actions never depend on
+``observation.environment_state``; the strategy can be fixed (learned Slide / Lift baselines); it
+reloads to identical weights and actions; the builder refuses sub-models trained on Test objects; the
+executor is conditioned exactly as the primitive set recorded the expert's stages."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.utils import preprocess_observation
+from lerobot.utils.constants import OBS_ENV_STATE
+
+import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy types
+from flatlab_lerobot.env import FlatLabEnv
+from flatlab_lerobot.learning import unified_build
+from flatlab_lerobot.policies.executor import configuration_flatlab_executor as C
+from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
+from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
+from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
+from flatlab_lerobot.policies.unified.configuration_flatlab_unified import INPUTS, FlatLabUnifiedConfig
+from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy, _Episode
+from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES, World
+
+BIN = Path(sys.executable).parent
+N, K = 128, 32  # scene / object cloud points of the tiny artifact
+CAMS = ["front", "top", "left", "right"]
+ENV_FLAGS = [f"--env.pointcloud_cameras=[{','.join(CAMS)}]", "--env.image_size=32", f"--env.n_points={N}",
+             f"--env.n_object_points={K}", "--env.obs_pixels=false"]  # fmt: skip
+OBJECT = "ref_box"
+
+
+def _tiny_submodels(root: Path) -> tuple[Path, Path]:
+    torch.manual_seed(0)
+    ex = C.FlatLabExecutorConfig(
+        device="cpu", push_to_hub=False, n_points=64, sa_npoints=[32, 8], sa_nsamples=[8, 8], sa_mlps=[[16], [32]],
+        global_mlp=[32], head_hidden=[32], cond_dim=8, frame_center="object",
+        input_features={C.OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, (N, 3)),
+                        C.OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (C.PRIMITIVE_DIM,)),
+                        C.OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (C.TCP_STATE_DIM,)),
+                        C.OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, (K, 3))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (C.ACTION_DIM,))},
+    )  # fmt: skip
+    gen = FlatLabStrategyConfig(
+        device="cpu", push_to_hub=False, n_points=64, encoder_channels=[16, 32], head_hidden=16, proj_hidden=16,
+        proj_dim=8, input_features={"observation.object_pointcloud": PolicyFeature(FeatureType.STATE, (K, 3))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (3,))},
+    )  # fmt: skip
+    FlatLabExecutorPolicy(ex).save_pretrained(root / "executor")
+    FlatLabStrategyPolicy(gen).save_pretrained(root / "generator")
+    return root / "generator", root / "executor"
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("unified")
+    gen, ex = _tiny_submodels(root)
+    record = unified_build.build(gen, ex, root / "unified", allow_unverified=True, log=lambda *a: None)
+    return {"root": root, "generator": gen, "executor": ex, "artifact": root / "unified", "record": record}
+
+
+def _load(path, **overrides) -> FlatLabUnifiedPolicy:
+    cfg = PreTrainedConfig.from_pretrained(path, cli_overrides=[f"--{k}={v}" for k, v in overrides.items()])
+    pol = FlatLabUnifiedPolicy.from_pretrained(path, config=cfg)
+    pol.eval()
+    return pol
+
+
+def _env(object_id=OBJECT, **kw) -> FlatLabEnv:
+    return FlatLabEnv(object_id=object_id, obs_pixels=False, n_points=N, n_object_points=K, image_size=32,
+                      pointcloud_cameras=CAMS, **kw)  # fmt: skip
+
+
+def _batch(obs: dict) -> dict:
+    """The env observation as lerobot-eval hands it to the policy (batched tensors, policy keys)."""
+    return preprocess_observation({k: np.asarray(v)[None] for k, v in obs.items()})
+
+
+# ------------------------------------------------------------------------------ the artifact
+def test_artifact_is_a_pretrained_model_folder_holding_both_submodels(tiny):
+    from safetensors.torch import load_file
+
+    art = tiny["artifact"]
+    for name in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json",
+                 unified_build.BUILD_RECORD):  # fmt: skip
+        assert (art / name).is_file(), name
+    cfg = json.loads((art / "config.json").read_text())
+    assert cfg["type"] == "flatlab_unified" and cfg["strategy"] == "learned"
+    assert set(cfg["input_features"]) == set(INPUTS) and OBS_ENV_STATE not in cfg["input_features"]
+    weights = load_file(str(art / "model.safetensors"))
+    for sub in ("generator", "executor"):
+        own = load_file(str(tiny[sub] / "model.safetensors"))
+        assert {k for k in weights if k.startswith(f"{sub}.")} == {f"{sub}.{k}" for k in own}
+        for k, v in own.items():
+            torch.testing.assert_close(weights[f"{sub}.{k}"], v, atol=0, rtol=0)
+    rec = tiny["record"]
+    assert rec["allow_unverified"] and not rec["train_only_check"]["executor"]["verified"]
+    assert f"--env.n_points={N}" in rec["env_flags"] and f"--env.n_object_points={K}" in rec["env_flags"]
+
+
+def test_plugin_registers_the_type_and_lerobot_finds_its_classes():
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    assert "flatlab_unified" in PreTrainedConfig.get_known_choices()
+    assert get_policy_class("flatlab_unified") is FlatLabUnifiedPolicy
+    pre, post = make_pre_post_processors(FlatLabUnifiedConfig(device="cpu"))
+    assert [type(s).__name__ for s in pre.steps][-1] == "DeviceProcessorStep"
+
+
+def _rollout(policies, steps: int, object_id=OBJECT, seed=0, batch_fns=None):
+    """One env episode driven by ``policies[0]``; every policy sees the same observation (through its
+    ``batch_fns`` entry) at every step.  Returns the actions (policies x steps x 16)."""
+    env = _env(object_id)
+    obs, _ = env.reset(seed=seed)
+    for p in policies:
+        p.reset()
+    fns = batch_fns or [_batch] * len(policies)
+    out = [[] for _ in policies]
+    for _ in range(steps):
+        acts = [p.select_action(fn(obs))[0].numpy() for p, fn in zip(policies, fns)]
+        for o, a in zip(out, acts):
+            o.append(a)
+        obs, _, term, trunc, _ = env.step(acts[0])
+        if term or trunc:
+            break
+    env.close()
+    return np.array(out)
+
+
+def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
+    a = _load(tiny["artifact"])
+    a.save_pretrained(tmp_path / "again")
+    b = _load(tmp_path / "again")
+    sa, sb = a.state_dict(), b.state_dict()
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        torch.testing.assert_close(sa[k], sb[k], atol=0, rtol=0)
+    acts = _rollout([a, b], steps=25)
+    np.testing.assert_array_equal(acts[0], acts[1])
+    assert a.stage_indices[0] >= 1  # the actions covered more than one predicted stage
+
+
+def test_actions_never_depend_on_environment_state(tiny):
+    """Three instances see each observation with the privileged state as is, zeroed, and absent."""
+    pols = [_load(tiny["artifact"]) for _ in range(3)]
+
+    def zeroed(obs):
+        b = _batch(obs)
+        b[OBS_ENV_STATE] = torch.zeros_like(b[OBS_ENV_STATE])
+        return b
+
+    def absent(obs):
+        return {k: v for k, v in _batch(obs).items() if k != OBS_ENV_STATE}
+
+    acts = _rollout(pols, steps=30, batch_fns=[_batch, zeroed, absent])
+    np.testing.assert_array_equal(acts[0], acts[1])
+    np.testing.assert_array_equal(acts[0], acts[2])
+    assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
+
+
+def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
+    """The executor is called once per stage, with the scene and object clouds observed when the stage
+    starts, (strategy, stage index, the stage's primitive name) and the TCP poses of the observed
+    joints (= the env's measured ee_pose)."""
+    pol = _load(tiny["artifact"], strategy="B")
+    calls = []
+    orig = pol.executor.predict_poses
+
+    def spy(cloud, strategy, index, primitive, proprio, object_cloud=None):
+        calls.append({"cloud": np.array(cloud), "obj": np.array(object_cloud), "strategy": strategy, "index": index,
+                      "primitive": primitive, "proprio": np.array(proprio)})  # fmt: skip
+        return orig(cloud, strategy, index, primitive, proprio, object_cloud=object_cloud)
+
+    pol.executor.predict_poses = spy
+    env = _env()
+    obs, _ = env.reset(seed=1)
+    pol.reset()
+    for _ in range(30):
+        n = len(calls)
+        action = pol.select_action(_batch(obs))[0].numpy()
+        if len(calls) > n:
+            c = calls[-1]
+            np.testing.assert_array_equal(c["cloud"], obs["pointcloud"].astype(np.float64))
+            np.testing.assert_array_equal(c["obj"], obs["object_pointcloud"].astype(np.float64))
+            ee = obs["ee_pose"].reshape(2, 7)
+            tcp = c["proprio"].reshape(2, 8)
+            # (ee_pose is the TCP site from the last physics substep's kinematics: up to ~1 mm behind the
+            # joints while an arm moves; at rest they agree to float precision)
+            tol = 1e-4 if len(calls) == 1 else 3e-3
+            np.testing.assert_allclose(tcp[:, :3], ee[:, :3], atol=tol)
+            dots = np.abs((tcp[:, 3:7] * ee[:, 3:7]).sum(1))
+            np.testing.assert_allclose(dots, 1.0, atol=tol)  # same rotation (q or -q)
+            np.testing.assert_allclose(tcp[:, 7], obs["agent_pos"][[7, 15]], atol=1e-6)
+        obs, *_ = env.step(action)
+    env.close()
+    assert [c["index"] for c in calls] == list(range(len(calls))) and len(calls) >= 2
+    assert all(c["strategy"] == "B" and c["primitive"] == STAGE_SPECS["B"][c["index"]].primitive for c in calls)
+
+
+@pytest.mark.parametrize("strategy", ["A", "B"])
+def test_fixed_strategy_is_the_learned_slide_or_lift_baseline(tiny, tmp_path, strategy):
+    pol = _load(tiny["artifact"], strategy=strategy)
+    _rollout([pol], steps=3)
+    assert pol.strategies == [strategy] and pol.stage_indices == [0]
+    # ... and the builder writes it into the artifact
+    out = tmp_path / strategy
+    unified_build.build(tiny["generator"], tiny["executor"], out, strategy=strategy, allow_unverified=True,
+                        log=lambda *a: None)  # fmt: skip
+    assert PreTrainedConfig.from_pretrained(out).strategy == strategy
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="strategy"):
+        FlatLabUnifiedConfig(strategy="D")
+    with pytest.raises(ValueError, match="max_push_passes"):
+        FlatLabUnifiedConfig(max_push_passes=4)
+    with pytest.raises(ValueError, match="input_key"):
+        FlatLabUnifiedConfig(generator=FlatLabStrategyConfig(input_key="observation.scene_pointcloud"))
+
+
+# ------------------------------------------------------------------------------ decisions
+def _cloud_x(x0, x1, y=0.0, z=0.77, n=K):
+    pts = np.zeros((n, 3))
+    pts[:, 0] = np.linspace(x0, x1, n)
+    pts[:, 1], pts[:, 2] = y, z
+    return pts
+
+
+@pytest.mark.parametrize("x0,x1,max_passes,skip", [
+    (-0.10, 0.20, 3, False),  # far from the edge (0.3 m): another pass
+    (0.10, 0.39, 3, True),  # overhangs 9 cm >= min(8.5 cm, 0.4 * 29 cm): skipped
+    (0.10, 0.378, 3, True),  # 7.8 cm: within 1 cm of the 8.5-cm target: skipped
+    (0.10, 0.36, 3, False),  # 6 cm: 2.5 cm short: another pass
+    (-0.10, 0.20, 1, True),  # only one pass allowed
+])  # fmt: skip
+def test_push_passes_are_decided_from_the_object_cloud_and_the_cell(tiny, x0, x1, max_passes, skip):
+    from flatlab_lerobot.sim.scene import CellConfig
+
+    pol = _load(tiny["artifact"], max_push_passes=max_passes)
+    ep = _Episode(pol, None, "A")
+    ep.index = 4  # the second pass's touch
+    obs = FlatLabUnifiedPolicy.observed({
+        "observation.state": torch.zeros(1, 16), "observation.cell": torch.as_tensor(CellConfig().calibration())[None],
+        "observation.pointcloud": torch.zeros(1, N, 3), "observation.object_pointcloud": torch.as_tensor(_cloud_x(x0, x1))[None],
+    })[0]  # fmt: skip
+    assert ep._skip_pass(obs) is skip
+    assert ep.index == (7 if skip else 4)  # a skipped pass: on to its release, the next stage is pass 3 / the grasp
+    # the first pass never is a decision
+    ep.index = 0
+    assert ep._skip_pass(obs) is False
+
+
+def test_stage_specs_name_the_primitives_the_expert_poses():
+    """The executor is conditioned on STAGE_SPECS' primitive names; the primitive set recorded the
+    names of the primitives the expert's stage functions returned: they must be the same."""
+    R = np.eye(3)
+    for deformable in (False, True):
+        w = World(np.array([0.0, 0.05, 0.76]), 0.2, np.array([0.25, 0.2, 0.02]), deformable, 0.75, 0.3)
+        poses = {a: (np.array([0.2, 0.3 if a == "left" else -0.3, 0.9]), R) for a in ("left", "right")}
+        grip = {"left": 0.04, "right": 0.04}
+        for strat, stages in STRATEGIES.items():
+            assert len(stages) == len(STAGE_SPECS[strat]) <= C.MAX_STAGES
+            ctx = {}
+            for i, stage in enumerate(stages):
+                prim = stage(None, w, poses, grip, ctx)
+                spec = STAGE_SPECS[strat][i]
+                assert prim.name == spec.primitive and prim.transit == spec.transit, (strat, i)
+
+
+# ------------------------------------------------------------------------------ through the CLIs
+@pytest.mark.slow
+def test_lerobot_eval_runs_the_artifact(tiny, tmp_path):
+    out = tmp_path / "eval"
+    cmd = [str(BIN / "lerobot-eval"), f"--policy.path={tiny['artifact']}", "--env.type=flatlab",
+           f"--env.object_id={OBJECT}", *ENV_FLAGS, "--env.render_size=32", "--env.episode_length=30",
+           "--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={out}"]  # fmt: skip
+    res = subprocess.run(cmd, check=False, capture_output=True, text=True, env={**os.environ, "MUJOCO_GL": "egl"},
+                         timeout=600)  # fmt: skip
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    info = json.loads((out / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
+
+
+@pytest.mark.slow
+def test_flatlab_eval_fills_column_s(tiny, tmp_path):
+    from flatlab_lerobot.evaluation.protocol import main as eval_main
+
+    out = tmp_path / "feval"
+    assert eval_main(["--policy", str(tiny["artifact"]), "--objects", OBJECT, "--trials", "1", "--workers", "1",
+                      "--quiet", "--no-plot", "--out", str(out), *ENV_FLAGS, "--env.episode_length=20"]) == 0  # fmt: skip
+    (rec,) = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+    assert rec["strategy"] in ("A", "B", "C") and rec["S"] == (rec["strategy"] == "B") and rec["steps"] == 20
+
+
+# ------------------------------------------------------------------------------ Train objects only
+def _fake_dataset(root: Path, tasks: list[str], frames: pd.DataFrame | None = None, export: dict | None = None):
+    (root / "meta").mkdir(parents=True)
+    (root / "meta" / "info.json").write_text("{}")
+    pd.DataFrame({"task_index": range(len(tasks))}, index=pd.Index(tasks, name="task")).to_parquet(
+        root / "meta" / "tasks.parquet"
+    )
+    if frames is not None:
+        frames.to_parquet(root / "meta" / "flatlab_strategy_frames.parquet")
+    if export is not None:
+        (root / "flatlab_export.json").write_text(json.dumps(export))
+
+
+def _with_train_config(model: Path, dest: Path, dataset: Path) -> Path:
+    import shutil
+
+    shutil.copytree(model, dest)
+    (dest / "train_config.json").write_text(json.dumps({"dataset": {"repo_id": "local/x", "root": str(dataset)}}))
+    return dest
+
+
+def test_builder_checks_that_submodels_saw_train_objects_only(tiny, tmp_path):
+    from flatlab_lerobot.catalog import load_objects
+    from flatlab_lerobot.policies.executor.configuration_flatlab_executor import task_string
+
+    cat = load_objects()
+    train = sorted(o.id for o in cat.values() if o.split == "train")[:2]
+    test = sorted(o.id for o in cat.values() if o.split == "test_alpha")[0]
+    ok_ex, bad_ex, evalonly_ex, ok_gen, bad_gen = (tmp_path / n for n in ("ok_ex", "bad_ex", "eo_ex", "ok_gen", "bad_gen"))
+    _fake_dataset(ok_ex, [task_string(o, "train", "A") for o in train], export={"eval_only": False})
+    _fake_dataset(bad_ex, [task_string(train[0], "train", "A"), task_string(test, "test_alpha", "B")])
+    _fake_dataset(evalonly_ex, [task_string(train[0], "train", "A")], export={"eval_only": True})
+    _fake_dataset(ok_gen, ["x"], frames=pd.DataFrame({"base_object_id": train, "split": ["train"] * len(train)}))
+    _fake_dataset(bad_gen, ["x"], frames=pd.DataFrame({"base_object_id": [train[0], test], "split": ["train", "train"]}))
+    gen = {n: _with_train_config(tiny["generator"], tmp_path / f"m_{n}", tmp_path / n) for n in ("ok_gen", "bad_gen")}
+    ex = {n: _with_train_config(tiny["executor"], tmp_path / f"m_{n}", tmp_path / n) for n in ("ok_ex", "bad_ex", "eo_ex")}
+    quiet = {"log": lambda *a: None}
+    rec = unified_build.build(gen["ok_gen"], ex["ok_ex"], tmp_path / "ok", **quiet)
+    assert rec["train_only_check"]["executor"]["objects"] == train and rec["train_only_check"]["generator"]["verified"]
+    assert not rec["allow_unverified"]
+    with pytest.raises(unified_build.UnifiedBuildError, match=test):
+        unified_build.build(gen["ok_gen"], ex["bad_ex"], tmp_path / "x1", **quiet)
+    with pytest.raises(unified_build.UnifiedBuildError, match="eval_only"):
+        unified_build.build(gen["ok_gen"], ex["eo_ex"], tmp_path / "x2", **quiet)
+    with pytest.raises(unified_build.UnifiedBuildError, match=test):
+        unified_build.build(gen["bad_gen"], ex["ok_ex"], tmp_path / "x3", **quiet)
+    with pytest.raises(unified_build.UnifiedBuildError, match="train_config.json missing"):  # no --allow-unverified
+        unified_build.build(tiny["generator"], tiny["executor"], tmp_path / "x4", **quiet)
+    with pytest.raises(unified_build.UnifiedBuildError, match="flatlab_strategy"):  # the sub-models swapped
+        unified_build.build(ex["ok_ex"], gen["ok_gen"], tmp_path / "x5", **quiet)
