@@ -71,9 +71,12 @@ def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
 def test_unmet_needs_block_a_stage_and_its_users(monkeypatch):
     ctx = ctx_for("cpu")
     st = P.statuses(ctx)
-    assert st["unified_cpu"].state == "blocked" and "flatlab_lerobot.policies.unified" in st["unified_cpu"].reason
-    assert st["eval_flatlab"].state == "blocked" and st["eval_flatlab"].reason.startswith("unified_cpu:")
     assert st["eval_pi0"].state == "blocked" and "needs weights" in st["eval_pi0"].reason
+    assert st["eval_desk_flatlab"].state == "blocked" and "does not carry" in st["eval_desk_flatlab"].reason
+    ctx.stages["unified_cpu"].needs.append("module:flatlab_lerobot.no_such_module")
+    st = P.statuses(ctx)
+    assert st["unified_cpu"].state == "blocked" and "no_such_module not in this tree" in st["unified_cpu"].reason
+    assert st["eval_flatlab"].state == "blocked" and st["eval_flatlab"].reason.startswith("unified_cpu:")
     monkeypatch.setattr(P, "_CUDA", [False])
     paper = P.statuses(ctx_for("paper"))
     assert paper["strategy_train_paper"].state == "blocked" and paper["strategy_train_paper"].reason == "needs GPU"
@@ -88,7 +91,8 @@ def test_dry_run_plan_reports_earlier_runs_and_blocked_stages(capsys):
     out = capsys.readouterr().out
     assert re.search(r"strategy_cpu\s+metrics\s+earlier", out)
     assert re.search(r"eval_oracle\s+eval\s+earlier\s+\(earlier run: oracle.json\)", out)
-    assert re.search(r"eval_act\s+eval\s+blocked\s+\(baseline_train_act: not available \(policies/act/cpu.json", out)
+    assert re.search(r"eval_pi0\s+eval\s+blocked\s+\(needs weights \(lerobot/pi0\)\)", out)
+    assert "--dataset.episodes=$(flatlab collect --recipe datasets/baselines_cpu.yaml" in out
     assert "$ lerobot-train --config_path=policies/flatlab_strategy/cpu.json" in out
     with pytest.raises(P.PaperError, match="no such stage"):
         paper_main(["--preset", "cpu", "--only", "nope", "--dry-run"])
@@ -108,7 +112,7 @@ def test_tables_from_the_committed_results():
     assert row.split(" | ")[2] == f"{full['train']['acc_catalog']:.1f}"
     smoke = json.loads((RESULTS / "executor_smoke_cpu2000.json").read_text())["pose_errors"]
     assert f"| {smoke['test_beta']['grasp']['p_mse_start_m2']:.4f} | 0.0040 |" in text
-    assert "needs weights (lerobot/pi0)" in text and "not run yet" in text
+    assert "needs weights (lerobot/pi0)" in text and "not run yet" in text and "does not carry" in text
     assert "| 81.1 |" in text.split("## Table 2")[0]  # the paper's FlatLab Train
 
 
@@ -159,13 +163,12 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     ctx = P.context("tiny", out, res)
     st = P.statuses(ctx)
     ran = [n for n, s in st.items() if s.state == "done"]
-    assert set(ran) == set(ctx.stages) - {"unified_cpu", "eval_flatlab"}
+    assert set(ran) == set(ctx.stages)
     for n in ran:  # every record carries its provenance
         meta = st[n].record["paper_stage"]
         assert {"command", "fingerprint", "seeds", "git", "wall_s", "machine", "device", "preset", "created"} <= set(meta)
         assert meta["preset"] == "tiny" and meta["machine"]["cpu_count"] and meta["device"].startswith(("cpu", "cuda"))
         assert "metrics" in st[n].record or ctx.stages[n].is_result
-    assert st["eval_flatlab"].state == "blocked"
     page = (res / "results.md").read_text()
     # the rendered numbers are the results files' numbers
     ev = json.loads((res / "tiny" / "eval_oracle.json").read_text())
@@ -177,7 +180,8 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     assert full.split(" | ")[2] == f"{acc['train']['acc_catalog']:.1f}"
     ex = json.loads((res / "tiny" / "executor_cpu.json").read_text())["splits"]["train"]["grasp"]
     assert f"| {ex['p_mse_start_m2']:.4f} | 0.0032 |" in page
-    assert "unified_cpu: not available" in page
+    uni = json.loads((res / "tiny" / "eval_flatlab.json").read_text())["per_split"]["train"]
+    assert f"{100 * uni['G']:.1f} (" in _table_lines(page, "| FlatLab (flatlab_unified)")[0]
     first = R.tables(ctx)
     # cached: nothing to run
     capsys.readouterr()

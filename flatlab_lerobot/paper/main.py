@@ -78,7 +78,8 @@ def main(argv_=None) -> int:
                 continue
             print(f"[run ] {name}: {display(ctx, ctx.stages[name])}", flush=True)
             try:
-                rec = run_stage(ctx, ctx.stages[name], fps[name], fps, restart=name in force)
+                # resume only an interrupted run (no record yet); a forced or stale stage starts over
+                rec = run_stage(ctx, ctx.stages[name], fps[name], fps, restart=name in force or st[name].state != "missing")
             except PaperError as e:
                 if not a.keep_going:
                     raise

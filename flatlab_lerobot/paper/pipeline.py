@@ -9,7 +9,9 @@ what a stage does; a new policy or baseline is a new entry in those files.
 Templates.  ``${var}`` is a preset variable (or a field of the ``for:`` item a stage is expanded
 from); an argv item that is exactly ``${var}`` and names a list is spliced in.  At run time
 ``{out}`` is the stage's own folder (``--out``/<stage>), ``{<stage>}`` another stage's folder
-(which makes that stage an input) and ``{record:<stage>}`` another stage's record path.
+(which makes that stage an input), ``{record:<stage>}`` another stage's record path, and an item
+``{jsonlist:<stage>/<file>#<key>}`` is replaced by the list under ``key`` in that stage's JSON file
+(the env flags ``flatlab unified-build`` wrote for its artifact).
 
 Cache.  A stage is **done** when its record exists with the same fingerprint: a hash of its
 expanded command, the preset's environment variables, the recipe files it names (their bytes)
@@ -21,7 +23,7 @@ shards, ``lerobot-train`` resumes from its last checkpoint).
 
 Needs.  ``gpu`` (no CUDA here: *needs GPU*), ``weights:<hub id>`` (not in the HF cache: *needs
 weights*), ``module:<python module>``, ``cli:<flatlab subcommand>`` and ``recipe:<path>`` (not in
-this tree: *not available*).  A stage with an unmet need, or an input with one, is **blocked** and
+this tree: *not available*), ``todo:<what is missing>`` (always *not available*).  A stage with an unmet need, or an input with one, is **blocked** and
 reported as such by ``--dry-run`` and in the rendered tables.
 """
 
@@ -55,6 +57,7 @@ REGISTRY = HERE / "stages.yaml"
 KINDS = ("learning-set", "train", "build", "eval", "metrics")
 VAR = re.compile(r"\$\{(\w+)\}")
 REF = re.compile(r"\{(record:)?([\w.-]+)\}")
+JSONLIST = re.compile(r"\{jsonlist:([\w.-]+)/([^#}]+)#(\w+)\}")  # a list in an input stage's JSON, spliced
 REPO_FILE = re.compile(r"(?:policies|datasets)/[\w./-]+\.(?:json|ya?ml)")
 
 
@@ -178,6 +181,7 @@ def build_stages(preset: dict) -> dict[str, Stage]:
             stage.needs = [n for n in stage.needs if n]
             stage.legacy = [x for x in stage.legacy if x]
             refs = [m[2] for a in stage.cmd for m in REF.finditer(a) if m[2] != "out"]
+            refs += [m[1] for a in stage.cmd if (m := JSONLIST.fullmatch(a))]
             for r in refs:
                 if r not in stages:
                     raise PaperError(f"{where}: {{{r}}} names no earlier stage")
@@ -259,9 +263,11 @@ def unmet(need: str) -> str | None:
         from flatlab_lerobot.cli import PASSTHROUGH
 
         return None if arg in PASSTHROUGH else f"not available (no `flatlab {arg}`)"
+    if kind == "todo":  # a stage registered before what it needs exists (say what is missing)
+        return f"not available ({arg})"
     if kind == "recipe":
         return None if (REPO / arg).is_file() else f"not available ({arg} not in this tree)"
-    raise PaperError(f"unknown need {need!r} (gpu, weights:, module:, cli:, recipe:)")
+    raise PaperError(f"unknown need {need!r} (gpu, weights:, module:, cli:, recipe:, todo:)")
 
 
 @dataclass
@@ -342,7 +348,15 @@ def argv(ctx: Context, st: Stage, display: bool = False) -> list[str]:
             return f"$RESULTS/{p.relative_to(ctx.results_dir)}" if display else str(p)
         return f"$OUT/{name}" if display else str(ctx.out(name))
 
-    out = [REF.sub(ref, a) for a in st.cmd]
+    out = []
+    for a in st.cmd:
+        m = JSONLIST.fullmatch(a)
+        if m is None:
+            out.append(REF.sub(ref, a))
+        elif display:
+            out.append(f"<{m[3]} of $OUT/{m[1]}/{m[2]}>")
+        else:  # an input's JSON names flags for this command (e.g. the env flags a built policy needs)
+            out += [str(x) for x in json.loads((ctx.out(m[1]) / m[2]).read_text())[m[3]]]
     if display:
         return out
     prog = out[0]
@@ -425,6 +439,25 @@ def _output_summary(out: Path, log: Path) -> dict:
     return res
 
 
+SUBST = re.compile(r"\$\((.+)\)")
+
+
+def _expand_subcommands(ctx: Context, st: Stage, cmd: list[str], env: dict) -> list[str]:
+    """``$(flatlab ...)`` inside an argv item: run it (paths substituted like the stage's) and put its
+    stripped stdout there, as a shell would (e.g. ``--dataset.episodes=$(flatlab collect ... --successful-episodes)``)."""
+    out = []
+    for a in cmd:
+        m = SUBST.search(a)
+        if m:
+            sub = argv(ctx, Stage(st.name, st.kind, shlex.split(m[1])))
+            r = subprocess.run(sub, cwd=REPO, env=env, capture_output=True, text=True)
+            if r.returncode != 0:
+                raise PaperError(f"stage {st.name}: $({m[1]}) failed: {r.stderr[-2000:]}")
+            a = a[: m.start()] + r.stdout.strip() + a[m.end() :]
+        out.append(a)
+    return out
+
+
 def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bool = False) -> dict:
     """Run one stage and write its record; ``restart``: discard its output first (no resume)."""
     cmd = argv(ctx, st)
@@ -441,6 +474,7 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
     env = dict(os.environ, **{k: str(v) for k, v in ctx.preset["env"].items()})
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
     env.setdefault("MUJOCO_GL", "egl")
+    cmd = _expand_subcommands(ctx, st, cmd, env)
     log = ctx.log_path(st.name)
     log.parent.mkdir(parents=True, exist_ok=True)
     created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
