@@ -1,6 +1,6 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
 ``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``,
-``primitive-export``, ``executor-metrics``, ``unified-build``."""
+``primitive-export``, ``executor-metrics``, ``unified-build``, ``desk``, ``paper``."""
 
 from __future__ import annotations
 
@@ -26,6 +26,8 @@ PASSTHROUGH = {
     "strategy-export": "flatlab_lerobot.learning.strategy_export",
     "strategy-eval": "flatlab_lerobot.learning.strategy_eval",
     "unified-build": "flatlab_lerobot.learning.unified_build",
+    "desk": "flatlab_lerobot.paper.desk",
+    "paper": "flatlab_lerobot.paper.main",
 }
 """Subcommands whose own parser takes the rest of the command line (``flatlab eval --help``)."""
 
@@ -61,6 +63,8 @@ def main(argv=None) -> int:
         ("strategy-export", "a strategy set as a LeRobotDataset v3 for lerobot-train --policy.type=flatlab_strategy"),
         ("strategy-eval", "learned strategy generator: accuracy per split / category, confusion, cloud ambiguity"),
         ("unified-build", "one flatlab_unified policy folder from a trained flatlab_strategy and flatlab_executor"),
+        ("desk", "the five-object desk (clear_desk) with the scripted expert over layout seeds"),
+        ("paper", "the paper's results: run the missing stages of a preset (cached), render docs/results.md"),
     ):
         sub.add_parser(name, help=text).add_argument("rest", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)

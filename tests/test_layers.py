@@ -28,7 +28,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("env",),  # the gymnasium env
     ("rollout", "demo"),  # the one episode loop and its simplest user
     ("lerobot_env", "policies", "collect", "learning", "evaluation", "bench", "viz", "assets_cli"),  # LeRobot-facing
-    ("lerobot_plugin", "cli"),  # entry points
+    ("lerobot_plugin", "cli", "paper"),  # entry points; paper runs the other layers' commands
 ]
 
 

@@ -1,0 +1,476 @@
+"""``docs/results.md``, its plots and the README's headline table, from the results JSONs alone.
+
+Every number comes from a record of a stage of the preset (``pipeline.statuses``): a record the
+pipeline wrote (with its ``paper_stage`` provenance), or an earlier measured file in its own format
+(``oracle.json``, ``strategy_*.json``, ``executor_smoke_*.json``), read through the small
+normalizers below.  The paper's numbers come from ``paper_numbers.json``.  A row whose stage has
+not run, or cannot run here, says so (``not run yet``, ``needs GPU``, ``not available: ...``) and
+names the ``flatlab paper`` command that makes it.
+
+:func:`tables` is deterministic for given records (no wall times, dates or commits); the page adds
+the provenance (:func:`runs_table`) after it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from flatlab_lerobot.paper.pipeline import REPO, Context, Status, display, statuses
+
+PAPER = json.loads((Path(__file__).with_name("paper_numbers.json")).read_text())
+SPLITS = ("train", "test_alpha", "test_beta")
+SPLIT_NAMES = {"train": "Train", "test_alpha": "Test-α", "test_beta": "Test-β"}
+T1_ROWS = [  # (our row label, the paper's Table 1 row)
+    ("Slide", "Slide"), ("Lift", "Lift"), ("ACT", None), ("Diffusion Policy", "Diffusion Policy"),
+    ("3D Diffusion Policy", "3D Diffusion Policy"), ("OpenVLA", "OpenVLA"), ("pi0", "pi0"), ("pi0.5", "pi0.5"),
+    ("FlatLab", "FlatLab"), ("Slide (scripted)", "Slide"), ("Lift (scripted)", "Lift"), ("oracle", None),
+]  # fmt: skip
+ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripted)": "Slide, scripted (expert, always A)",
+            "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
+            "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
+            "ACT": "ACT (not in the paper)"}  # fmt: skip
+ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
+GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
+EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor
+
+
+# ----------------------------------------------------------------------------- normalizers
+def _frac(k: int, n: int) -> tuple[int, int]:
+    return int(k), int(n)
+
+
+def grasp(rec: dict) -> dict:
+    """S / G counts per split and per (split, category) from a ``flatlab eval`` results.json or the
+    earlier oracle.json.  ``{"split": {s: {"G": (k, n), "S": (k, n) | None}}, "category": {(s, c): ...}}``."""
+    out: dict = {"split": {}, "category": {}, "category_split_known": True}
+    if "per_object" in rec:  # flatlab eval's summary
+        for o in rec["per_object"]:
+            for key, d in ((o["split"], out["split"]), ((o["split"], o["category"]), out["category"])):
+                row = d.setdefault(key, {"G": [0, 0], "S": [0, 0]})
+                row["G"][0] += o["G"]
+                row["G"][1] += o["trials"]
+                if o["S"] is None or row["S"] is None:
+                    row["S"] = None
+                else:
+                    row["S"][0] += o["S"]
+                    row["S"][1] += o["trials"]
+        for d in (out["split"], out["category"]):
+            for row in d.values():
+                row["G"] = tuple(row["G"])
+                row["S"] = None if row["S"] is None else tuple(row["S"])
+        return out
+    # the earlier oracle.json: G per split, S overall only, G per category over all splits
+    s_all = rec.get("S") or {}
+    perfect = s_all.get("trials") and s_all.get("correct") == s_all.get("trials")
+    for s, v in (rec.get("per_split") or {}).items():
+        out["split"][s] = {"G": _frac(v["G"], v["trials"]), "S": _frac(v["trials"], v["trials"]) if perfect else None}
+    for c, v in (rec.get("per_category") or {}).items():
+        out["category"][(None, c)] = {"G": _frac(v["G"], v["trials"]), "S": _frac(v["trials"], v["trials"]) if perfect else None}
+    out["category_split_known"] = False
+    return out
+
+
+def strategy(rec: dict) -> dict:
+    """Accuracy (%) per split against the catalog label (and the paper's label) from strategy-eval."""
+    return {s: {"acc": v["acc_catalog"], "acc_paper_label": v.get("acc_paper"), "n": v["n"]}
+            for s, v in (rec.get("per_split") or {}).items()}  # fmt: skip
+
+
+def executor(rec: dict) -> dict:
+    """Grasp P-MSE (m²) and R-Err (rad) per split from executor-metrics or the earlier smoke runs."""
+    splits = rec.get("splits") or rec.get("pose_errors") or {}
+    return {s: {"p_mse": v["grasp"]["p_mse_start_m2"], "r_err": v["grasp"]["r_err_start_rad"], "n": v["grasp"]["n_arm_samples"]}
+            for s, v in splits.items() if "grasp" in v}  # fmt: skip
+
+
+def desk(rec: dict) -> tuple[int, int]:
+    """(desks cleared, desks) from ``flatlab desk`` or a ``flatlab eval --env.task=clear_desk`` summary."""
+    if "per_desk" in rec:
+        return rec["success"], rec["trials"]
+    g = [grasp(rec)["split"][s]["G"] for s in grasp(rec)["split"]]
+    return sum(k for k, _ in g), sum(n for _, n in g)
+
+
+def provenance(rec: dict | None) -> dict:
+    """command, wall time (s), machine, device, commit of a record, whatever its format."""
+    rec = rec or {}
+    m = rec.get("paper_stage")
+    if m:
+        mach = m["machine"]
+        return {"command": m["command"], "wall_s": m["wall_s"], "machine": f"{mach['cpu_count']} × {mach['cpu_model']}",
+                "device": m["device"], "commit": (m["git"].get("commit") or "")[:7], "created": m["created"],
+                "pipeline": True}  # fmt: skip
+    cmds = rec.get("commands") or ([rec["command"]] if isinstance(rec.get("command"), str) else [])
+    if isinstance(rec.get("commands"), dict):
+        cmds = list(rec["commands"].values())
+    train = rec.get("training") or {}
+    if train.get("command"):
+        cmds = [train["command"], *cmds]
+    wall = None
+    if "train_wall_s" in train:  # strategy-eval with --train-wall
+        wall = train["train_wall_s"] + rec.get("wall_s", 0)
+    elif "wall_s" in train:  # executor smoke runs: training + metrics (their primitive sets: "shared")
+        wall = train["wall_s"] + rec.get("metrics_wall_s", 0)
+    elif (rec.get("runs") or {}).get("after_issue15_refactor"):
+        wall = rec["runs"]["after_issue15_refactor"]["wall_s"]
+    elif "wall_s" in rec:
+        wall = rec["wall_s"]
+    sets = rec.get("primitive_sets") or {}
+    shared = {json.dumps(sets, sort_keys=True): sum(v.get("wall_s", 0) for v in sets.values())} if sets else {}
+    return {"command": " ; ".join(cmds), "wall_s": wall, "machine": rec.get("machine", ""), "device": "cpu",
+            "commit": (rec.get("git_commit") or rec.get("commit") or "")[:7], "created": "", "pipeline": False,
+            "shared": shared}  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- helpers
+def _rows(ctx: Context, st: dict[str, Status], table: str) -> dict[str, str]:
+    """row label -> stage name, for the stages of ``table`` (the first stage wins)."""
+    out: dict[str, str] = {}
+    for name, stage in ctx.stages.items():
+        if stage.report.get("table") == table and stage.report.get("row"):
+            out.setdefault(stage.report["row"], name)
+    return out
+
+
+def _has(s: Status | None) -> bool:
+    return s is not None and s.record is not None and s.state in ("done", "earlier", "stale")
+
+
+def _state(s: Status | None) -> str:
+    if s is None:
+        return "not in this preset"
+    if s.state == "missing":
+        return "not run yet"
+    return {"done": "measured", "earlier": "measured (earlier run)", "stale": "stale record (config changed)"}.get(s.state, s.reason)
+
+
+def _pct(k: int, n: int) -> str:
+    return f"{100 * k / n:.1f}" if n else "–"
+
+
+def _paper_pct(v) -> str:
+    return "–" if v is None else f"{v:.1f}"
+
+
+def _cmd(ctx: Context, name: str) -> str:
+    return f"`flatlab paper --preset {ctx.preset['name']} --only {name}`"
+
+
+def _commands(ctx: Context, st: dict[str, Status], names: list[str]) -> list[str]:
+    """A 'commands' list: per stage the command that made (or will make) its result."""
+    lines = ["<details><summary>commands</summary>", ""]
+    for n in names:
+        s = st[n]
+        if s.state == "earlier":
+            lines.append(f"- `{n}` (earlier run, {os.path.basename(str(s.record_path))}): `{provenance(s.record)['command']}`")
+        else:
+            lines.append(f"- `{n}`: {_cmd(ctx, n)} runs `{display(ctx, ctx.stages[n])}`")
+    return [*lines, "", "</details>", ""]
+
+
+# ----------------------------------------------------------------------------- tables
+def table1(ctx: Context, st: dict[str, Status]) -> list[str]:
+    rows = _rows(ctx, st, "grasp")
+    paper = PAPER["table1_grasp_success_pct"]
+    lines = ["## Table 1: grasp success G (%) per split", "",
+             "Ours beside the paper's (`flatlab eval`: G = successes / trials; objects, trials and seeds in the commands below; "
+             "the paper: 5 trials per object).", "",
+             "| method | Train | paper | Test-α | paper | Test-β | paper | status | stage |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    used = []
+    for label, paper_row in T1_ROWS:
+        name = rows.get(label)
+        s = st.get(name) if name else None
+        p = paper.get(paper_row) if paper_row else None
+        cells = []
+        for i, split in enumerate(SPLITS):
+            g = grasp(s.record)["split"].get(split) if _has(s) else None
+            cells += [f"{_pct(*g['G'])} ({g['G'][0]}/{g['G'][1]})" if g else "–", _paper_pct(p[i]) if p else "–"]
+        lines.append(f"| {ROW_TEXT.get(label, label)} | {' | '.join(cells)} | {_state(s)} | {f'`{name}`' if name else '–'} |")
+        if name:
+            used.append(name)
+    lines += ["", "The paper's Slide and Lift are fixed-strategy methods; we report both the scripted expert with the "
+              "strategy fixed and the learned unified policy with the strategy fixed. The paper has no ACT row.", ""]
+    return lines + _commands(ctx, st, used)
+
+
+def table2(ctx: Context, st: dict[str, Status]) -> list[str]:
+    srows, erows = _rows(ctx, st, "strategy"), _rows(ctx, st, "executor")
+    pa, pp = PAPER["table2"]["strategy_accuracy_pct"], PAPER["table2"]["grasp_p_mse"]
+    what = PAPER["table2"]["what"]
+    head = "| ablation | what | Train | paper | Test-α | paper | Test-β | paper | status |"
+    lines = ["## Table 2: ablations A-1 … A-8", "",
+             "### Strategy accuracy (%) of the generator (`flatlab strategy-eval`)", "",
+             "Against the grounded catalog label, on the 104 benchmark objects in fresh placements (3 views each). "
+             "A-4 … A-6 change only the executor: their generator is Full's.", "", head, "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for ab in ABLATIONS:
+        row_of = ab if ab in GENERATOR_ROWS else "Full"
+        name = srows.get(row_of)
+        s = st.get(name) if name else None
+        m = strategy(s.record) if _has(s) else {}
+        cells = []
+        for i, split in enumerate(SPLITS):
+            cells += [f"{m[split]['acc']:.1f}" if split in m else "–", _paper_pct(pa[ab][i])]
+        state = _state(s) if row_of == ab else "= Full"
+        lines.append(f"| {ab} | {what[ab]} | {' | '.join(cells)} | {state} |")
+    lines += ["", "### Grasp P-MSE of the executor (`flatlab executor-metrics`)", "",
+              "Mean squared error (m²) of the grasp primitive's start position over the commanded arms (the paper "
+              "states no unit). A-1 … A-3, A-7, A-8 change only the generator: their executor is Full's.", "",
+              head, "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for ab in ABLATIONS:
+        row_of = ab if ab in EXECUTOR_ROWS else "Full"
+        name = erows.get(row_of)
+        s = st.get(name) if name else None
+        m = executor(s.record) if _has(s) else {}
+        cells = []
+        for i, split in enumerate(SPLITS):
+            cells += [f"{m[split]['p_mse']:.4f}" if split in m else "–", f"{pp[ab][i]:.4f}"]
+        state = _state(s) if row_of == ab else "= Full"
+        lines.append(f"| {ab} | {what[ab]} | {' | '.join(cells)} | {state} |")
+    return lines + [""] + _commands(ctx, st, [*srows.values(), *erows.values()])
+
+
+def per_category(ctx: Context, st: dict[str, Status]) -> list[str]:
+    rows = _rows(ctx, st, "grasp")
+    pc = PAPER["per_category"]
+    ours = {}
+    for label in ("FlatLab", "oracle", "Slide (scripted)", "Lift (scripted)", "Slide", "Lift", "Diffusion Policy", "3D Diffusion Policy"):
+        s = st.get(rows.get(label, ""))
+        ours[label] = grasp(s.record) if _has(s) else None
+    lines = ["## Per category: strategy choice S and grasp success G", "",
+             "Successes / trials per category (the paper's App. tables). FlatLab = the learned unified policy; "
+             "the paper's Slide / Lift / DP / DP3 columns beside ours.", ""]  # fmt: skip
+    note = False
+
+    def cell(label, split, cat, key="G"):
+        nonlocal note
+        g = ours.get(label)
+        if g is None:
+            return "–"
+        v = g["category"].get((split, cat))
+        if v is None and not g["category_split_known"]:
+            v = g["category"].get((None, cat))
+            shared = sum(cat in pc["flatlab_S_G"][x] for x in SPLITS) > 1  # a Train and Test-alpha category
+            note = note or shared
+            return "–" if v is None or v[key] is None else f"{v[key][0]}/{v[key][1]}{'¹' if shared else ''}"
+        return "–" if v is None or v[key] is None else f"{v[key][0]}/{v[key][1]}"
+
+    for split in SPLITS:
+        lines += [f"### {SPLIT_NAMES[split]}", "",
+                  "| category | FlatLab S | paper | FlatLab G | paper | oracle G | Slide G (scripted) | paper | "
+                  "Lift G (scripted) | paper | DP G | paper | DP3 G | paper |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for cat, (ps, pg) in pc["flatlab_S_G"][split].items():
+            pb = pc["baselines_G"][split][cat]
+            lines.append(
+                f"| {cat} | {cell('FlatLab', split, cat, 'S')} | {ps} | {cell('FlatLab', split, cat)} | {pg} | "
+                f"{cell('oracle', split, cat)} | {cell('Slide (scripted)', split, cat)} | {pb[0]} | "
+                f"{cell('Lift (scripted)', split, cat)} | {pb[1]} | {cell('Diffusion Policy', split, cat)} | {pb[2]} | "
+                f"{cell('3D Diffusion Policy', split, cat)} | {pb[3]} |"
+            )
+        lines.append("")
+    if note:
+        lines += ["¹ Train and Test-α together: the earlier run's file counts categories over all splits.", ""]
+    return lines
+
+
+def _sweep_points(ctx: Context, st: dict[str, Status], sw: dict) -> list[tuple[float, str, Status | None]]:
+    prefix = "strategy_" if sw["list"] == "strategy_runs" else "executor_"
+    return [(float(v), prefix + rid, st.get(prefix + rid)) for v, rid in sw["runs"].items()]
+
+
+def sensitivity(ctx: Context, st: dict[str, Status], plots: Path | None, page_dir: Path | None = None) -> list[str]:
+    lines = ["## Sensitivity (paper App.: λ, τ of the generator; λ_pos of the executor)", ""]
+    if not ctx.preset["sweeps"]:
+        return lines + ["No sweeps in this preset.", ""]
+    paper_pos = PAPER["sensitivity"]["lambda_pos"]
+    for sw in ctx.preset["sweeps"]:
+        pts = _sweep_points(ctx, st, sw)
+        strat = sw["list"] == "strategy_runs"
+        lines += [f"### {sw['label']} (`{sw['flag']}`; default {sw['default']})", ""]
+        if strat:
+            note = PAPER["sensitivity"].get(sw["id"], {}).get("_note", "")
+            lines += [f"Paper: {note}." if note else "", "", "| value | Train | Test-α | Test-β | status | stage |", "|---|---|---|---|---|---|"]
+        else:
+            lines += ["| value | P-MSE Test-α | paper | P-MSE Test-β | paper | R-Err Test-α (rad) | R-Err Test-β (rad) | status | stage |",
+                      "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        measured = []
+        for v, name, s in pts:
+            if strat:
+                m = strategy(s.record) if _has(s) else {}
+                cells = [f"{m[x]['acc']:.1f}" if x in m else "–" for x in SPLITS]
+            else:
+                m = executor(s.record) if _has(s) else {}
+                pv = dict(zip(map(float, paper_pos["values"]), range(len(paper_pos["values"]))))
+                j = pv.get(v)
+                cells = []
+                for x in ("test_alpha", "test_beta"):
+                    cells += [f"{m[x]['p_mse']:.4f}" if x in m else "–",
+                              "–" if j is None else f"{paper_pos[x]['p_mse'][j]:.4f}"]  # fmt: skip
+                cells += [f"{m[x]['r_err']:.3f}" if x in m else "–" for x in ("test_alpha", "test_beta")]
+            if m:
+                measured.append((v, m))
+            lines.append(f"| {v:g} | {' | '.join(cells)} | {_state(s)} | `{name}` |")
+        lines.append("")
+        if len(measured) >= 2 and plots is not None:
+            png = plots / f"{ctx.preset['results_prefix'].replace('/', '_')}sens_{sw['id']}.png"
+            _plot(sw, measured, png, paper_pos if not strat else None)
+            lines += [f"![{sw['label']}]({os.path.relpath(png, page_dir or plots)})", ""]
+        elif len(measured) < 2:
+            lines += [f"Plot: not drawn ({len(measured)} of {len(pts)} values measured; needs 2).", ""]
+        lines += _commands(ctx, st, [n for _, n, _ in pts])
+    return lines
+
+
+def _plot(sw: dict, measured: list, png: Path, paper_pos: dict | None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.2, 3.2))
+    xs = [v for v, _ in measured]
+    colors = {"train": "tab:blue", "test_alpha": "tab:orange", "test_beta": "tab:green"}
+    if paper_pos is None:
+        for split in SPLITS:
+            ys = [m.get(split, {}).get("acc") for _, m in measured]
+            ax.plot(xs, ys, "o-", color=colors[split], label=SPLIT_NAMES[split])
+        ax.set_ylabel("strategy accuracy (%)")
+        ax.set_ylim(0, 100)
+    else:
+        for split in ("test_alpha", "test_beta"):
+            ys = [m.get(split, {}).get("p_mse") for _, m in measured]
+            ax.plot(xs, ys, "o-", color=colors[split], label=f"{SPLIT_NAMES[split]} (ours, m²)")
+            ax.plot(paper_pos["values"], paper_pos[split]["p_mse"], "s--", color=colors[split], alpha=0.5,
+                    label=f"{SPLIT_NAMES[split]} (paper)")  # fmt: skip
+        ax.set_ylabel("grasp P-MSE")
+    if min(xs) > 0:
+        ax.set_xscale("log")
+    ax.axvline(float(sw["default"]), color="grey", lw=0.8, ls=":")
+    ax.set_xlabel(sw["label"])
+    ax.set_title("ours" + (" (solid) vs the paper (dashed)" if paper_pos else "") + "; dotted: the default", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+
+
+def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
+    rows = _rows(ctx, st, "desk")
+    paper = PAPER["clear_desk"]
+    lines = ["## The five-object desk (`clear_desk`)", "",
+             "Five rigid Test-β objects of five categories in one cell, cleared one after another; success = all five "
+             "lifted (2-s hold) and none left on the table.", "",
+             "| method | desks cleared | rate (%) | paper (%) | status | stage |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for label, paper_key in (("oracle", None), ("FlatLab", "FlatLab"), ("GPT-4o", "GPT-4o + same executor")):
+        name = rows.get(label)
+        s = st.get(name) if name else None
+        k_n = desk(s.record) if _has(s) else None
+        text = {"oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
+                "GPT-4o": "GPT-4o + the same executor"}[label]  # fmt: skip
+        ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
+        rate = _pct(*k_n) if k_n else "–"
+        state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
+        lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | {state} | "
+                     f"{f'`{name}`' if name else '–'} |")  # fmt: skip
+    return [*lines, "", *_commands(ctx, st, list(rows.values()))]
+
+
+def tables(ctx: Context, st: dict[str, Status] | None = None, plots: Path | None = None, page_dir: Path | None = None) -> str:
+    """Every results table of the preset, deterministic for given records (no times, dates, commits);
+    sweep plots are drawn into ``plots`` (linked relative to ``page_dir``) when given."""
+    st = st or statuses(ctx)
+    parts = (table1(ctx, st) + table2(ctx, st) + per_category(ctx, st) + sensitivity(ctx, st, plots, page_dir)
+             + desk_table(ctx, st))
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def runs_table(ctx: Context, st: dict[str, Status]) -> str:
+    """Wall time, machine, device and commit per stage; totals per kind and for the preset."""
+    lines = ["## Runs: wall time per stage", "",
+             "Measured records only; an earlier run's file gives one wall time for its whole chain (training + "
+             "evaluation; the executor's: training + metrics, its primitive sets counted once below). `$OUT` = "
+             f"`outputs/paper/{ctx.preset['name']}`, `$RESULTS` = `docs/results`.", "",
+             "| stage | kind | status | wall (s) | machine | device | commit | created |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    totals: dict[str, float] = {}
+    seen: set = set()
+    shared_note: list[str] = []
+    for name, stage in ctx.stages.items():
+        s = st[name]
+        if s.record is None or s.state == "blocked":
+            continue
+        p = provenance(s.record)
+        key = str(s.record_path)
+        wall = p["wall_s"] if key not in seen else None  # one earlier file may stand for several stages
+        seen.add(key)
+        if wall is not None:
+            totals[stage.kind] = totals.get(stage.kind, 0) + wall
+        for k, w in p.get("shared", {}).items():  # primitive sets that several earlier executor runs used
+            if k not in seen:
+                seen.add(k)
+                totals["learning-set"] = totals.get("learning-set", 0) + w
+                shared_note.append(f"`{name}`'s primitive sets: {w:.0f} s (counted once)")
+        lines.append(f"| `{name}` | {stage.kind} | {_state(s)} | {'–' if wall is None else f'{wall:.0f}'} | {p['machine']} | "
+                     f"{p['device']} | {p['commit'] or '–'} | {p['created'] or '–'} |")  # fmt: skip
+    n_left = sum(1 for n in ctx.stages if st[n].state in ("missing", "stale"))
+    n_blocked = sum(1 for n in ctx.stages if st[n].state == "blocked")
+    lines += ["", "| kind | wall (s) | wall (h) |", "|---|---|---|"]
+    for kind, w in totals.items():
+        lines.append(f"| {kind} | {w:.0f} | {w / 3600:.2f} |")
+    total = sum(totals.values())
+    lines += [f"| **preset {ctx.preset['name']} (measured part)** | **{total:.0f}** | **{total / 3600:.2f}** |", "",
+              f"Stages not run yet: {n_left}; blocked here: {n_blocked}; total: {len(ctx.stages)}."
+              + (f" Earlier runs' learning sets: {'; '.join(shared_note)}." if shared_note else ""), ""]  # fmt: skip
+    return "\n".join(lines)
+
+
+def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
+    """The README's headline table: ours (paper) per split."""
+    st = st or statuses(ctx)
+    g, s_, e = _rows(ctx, st, "grasp"), _rows(ctx, st, "strategy"), _rows(ctx, st, "executor")
+    pt1, pa, pp = PAPER["table1_grasp_success_pct"], PAPER["table2"]["strategy_accuracy_pct"]["Full"], PAPER["table2"]["grasp_p_mse"]["Full"]
+    lines = [f"| result (`--preset {ctx.preset['name']}`) | Train | Test-α | Test-β |", "|---|---|---|---|"]
+
+    def row(text, name, fmt, paper):
+        s = st.get(name) if name else None
+        if not _has(s):
+            why = _state(s).split(": ", 1)[-1].split(" (")[0]  # "not available", "needs GPU", "not run yet"
+            return f"| {text} | {why} (paper {paper[0]}) | – (paper {paper[1]}) | – (paper {paper[2]}) |"
+        return f"| {text} | " + " | ".join(f"{fmt(s.record, x)} (paper {paper[i]})" for i, x in enumerate(SPLITS)) + " |"
+
+    def g_fmt(rec, x):
+        v = grasp(rec)["split"].get(x)
+        return f"**{_pct(*v['G'])} %**" if v else "–"
+
+    lines.append(row("FlatLab (learned) grasp success G", g.get("FlatLab"), g_fmt, pt1["FlatLab"]))
+    lines.append(row("scripted oracle grasp success G", g.get("oracle"), g_fmt, ["–"] * 3))
+    lines.append(row("strategy generator accuracy", s_.get("Full"),
+                     lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
+    lines.append(row("executor grasp P-MSE (m²)", e.get("Full"),
+                     lambda r, x: f"{executor(r)[x]['p_mse']:.4f}" if x in executor(r) else "–", [f"{v:.4f}" for v in pp]))
+    return "\n".join(lines) + "\n"
+
+
+def write_page(ctx: Context, page: Path | None = None) -> Path:
+    st = statuses(ctx)
+    default_dir = (REPO / "docs" / "results").resolve()
+    if page is None:
+        page = REPO / "docs" / "results.md" if ctx.results_dir == default_dir else ctx.results_dir / "results.md"
+    plots = ctx.results_dir / "plots"
+    body = tables(ctx, st, plots, page.parent)
+    p = ctx.preset
+    head = [f"# Results: the paper's tables, measured (`--preset {p['name']}`)", "",
+            "<!-- generated by `flatlab paper --render-only` from docs/results/*.json: do not edit by hand -->", "",
+            f"Preset `{p['name']}`: {p.get('description', '')}. Every number below comes from a results JSON under "
+            "`docs/results/` (command, seeds, commit, wall time, machine, device inside); the paper's numbers from "
+            "`flatlab_lerobot/paper/paper_numbers.json`. Rebuild the page with `flatlab paper --render-only`; run what is "
+            f"missing with `flatlab paper --preset {p['name']}` (`--dry-run` shows the plan).", ""]  # fmt: skip
+    notes = [Path(__file__).with_name(f) for f in (f"notes_{p['name']}.md", "reproducibility.md")]
+    extra = "".join("\n" + f.read_text() for f in notes if f.is_file())
+    text = "\n".join(head) + "\n" + body + "\n" + runs_table(ctx, st) + extra
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text(text)
+    return page

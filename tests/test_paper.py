@@ -1,0 +1,197 @@
+"""``flatlab paper``: the stage registry and presets as data, caching, blocked stages, the renderer
+against the committed results, the README headline, and the whole pipeline on the tiny preset."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from flatlab_lerobot.paper import pipeline as P
+from flatlab_lerobot.paper import render as R
+from flatlab_lerobot.paper.main import main as paper_main
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "docs" / "results"
+
+
+def ctx_for(preset, tmp_path=None, results=None):
+    return P.context(preset, tmp_path / "out" if tmp_path else None, results)
+
+
+# ----------------------------------------------------------------------------- registry
+@pytest.mark.parametrize("preset", P.presets())
+def test_presets_expand_into_a_consistent_registry(preset):
+    ctx = ctx_for(preset)
+    names = list(ctx.stages)
+    for i, (name, st) in enumerate(ctx.stages.items()):
+        assert st.kind in P.KINDS
+        assert all(names.index(inp) < i for inp in st.inputs), f"{name}: an input comes later"
+        assert not any("${" in a for a in st.cmd), f"{name}: unexpanded variable in {st.cmd}"
+        if st.is_result:
+            assert st.metrics and st.report.get("table") in {"grasp", "strategy", "executor", "desk"}
+    # every Table 1 / Table 2 row of the paper has a stage in the cpu and paper presets
+    if preset in ("cpu", "paper"):
+        rows = {(s.report["table"], s.report["row"]) for s in ctx.stages.values() if s.report.get("row")}
+        for label, paper_row in R.T1_ROWS:
+            assert ("grasp", label) in rows, label
+        assert {("strategy", r) for r in R.GENERATOR_ROWS} <= rows
+        assert {("executor", r) for r in R.EXECUTOR_ROWS} <= rows
+        assert ("desk", "FlatLab") in rows and ("desk", "oracle") in rows
+
+
+def test_sweeps_are_generated_from_one_list_and_reuse_existing_runs():
+    ctx = ctx_for("cpu")
+    lam = next(s for s in ctx.preset["sweeps"] if s["id"] == "lambda")
+    assert lam["runs"][0.5] == "cpu" and lam["runs"][0.0] == "ablation_A1"  # the default and A-1 (lambda = 0)
+    tr = ctx.stages["strategy_train_lambda_1.0"]
+    assert tr.cmd[-1] == "--policy.contrast_weight=1.0" and "--config_path=policies/flatlab_strategy/cpu.json" in tr.cmd
+    pos = ctx.stages["executor_train_lambda_pos_3.0"]
+    assert pos.cmd[-1] == "--policy.lambda_pos=3.0" and "strategy_train_tau_0.2" in ctx.stages
+    assert "executor_train_lambda_pos_10.0" not in ctx.stages  # the default is the base run itself
+
+
+def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
+    ctx = ctx_for("tiny", tmp_path)
+    fp = P.fingerprints(ctx)
+    assert fp == P.fingerprints(ctx_for("tiny", tmp_path / "elsewhere"))  # not the output location
+    ctx.stages["strategy_export_cpu"].cmd.append("--seed=3")
+    fp2 = P.fingerprints(ctx)
+    assert fp2["strategy_export_cpu"] != fp["strategy_export_cpu"]
+    assert fp2["strategy_cpu"] != fp["strategy_cpu"]  # downstream of the change
+    assert fp2["eval_oracle"] == fp["eval_oracle"]  # not downstream
+    real = P._file_hash
+    monkeypatch.setattr(P, "_file_hash", lambda rel: "edited" if rel.endswith("flatlab_executor/cpu.json") else real(rel))
+    assert P.fingerprints(ctx)["executor_train_cpu"] != fp["executor_train_cpu"]
+
+
+def test_unmet_needs_block_a_stage_and_its_users(monkeypatch):
+    ctx = ctx_for("cpu")
+    st = P.statuses(ctx)
+    assert st["eval_pi0"].state == "blocked" and "needs weights" in st["eval_pi0"].reason
+    assert st["eval_desk_flatlab"].state == "blocked" and "does not carry" in st["eval_desk_flatlab"].reason
+    ctx.stages["unified_cpu"].needs.append("module:flatlab_lerobot.no_such_module")
+    st = P.statuses(ctx)
+    assert st["unified_cpu"].state == "blocked" and "no_such_module not in this tree" in st["unified_cpu"].reason
+    assert st["eval_flatlab"].state == "blocked" and st["eval_flatlab"].reason.startswith("unified_cpu:")
+    monkeypatch.setattr(P, "_CUDA", [False])
+    paper = P.statuses(ctx_for("paper"))
+    assert paper["strategy_train_paper"].state == "blocked" and paper["strategy_train_paper"].reason == "needs GPU"
+    assert paper["strategy_paper"].reason == "strategy_train_paper: needs GPU"
+    assert paper["strategy_set"].state == "missing"  # learning sets need no GPU
+    with pytest.raises(P.PaperError, match="unknown need"):
+        P.unmet("tpu")
+
+
+def test_dry_run_plan_reports_earlier_runs_and_blocked_stages(capsys):
+    assert paper_main(["--preset", "cpu", "--dry-run", "--no-render"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"strategy_cpu\s+metrics\s+earlier", out)
+    assert re.search(r"eval_oracle\s+eval\s+earlier\s+\(earlier run: oracle.json\)", out)
+    assert re.search(r"eval_pi0\s+eval\s+blocked\s+\(needs weights \(lerobot/pi0\)\)", out)
+    assert "--dataset.episodes=$(flatlab collect --recipe datasets/baselines_cpu.yaml" in out
+    assert "$ lerobot-train --config_path=policies/flatlab_strategy/cpu.json" in out
+    with pytest.raises(P.PaperError, match="no such stage"):
+        paper_main(["--preset", "cpu", "--only", "nope", "--dry-run"])
+
+
+# ----------------------------------------------------------------------------- renderer
+def test_tables_from_the_committed_results():
+    ctx = ctx_for("cpu")
+    text = R.tables(ctx)
+    oracle = json.loads((RESULTS / "oracle.json").read_text())
+    for split in R.SPLITS:
+        g = oracle["per_split"][split]
+        cell = f"{100 * g['G'] / g['trials']:.1f} ({g['G']}/{g['trials']})"
+        assert re.search(rf"\| scripted oracle \(expert, catalog label\) \|.*{re.escape(cell)}", text), cell
+    full = json.loads((RESULTS / "strategy_cpu.json").read_text())["per_split"]
+    row = next(line for line in text.splitlines() if line.startswith("| Full | the full model | ") and "." in line)
+    assert row.split(" | ")[2] == f"{full['train']['acc_catalog']:.1f}"
+    smoke = json.loads((RESULTS / "executor_smoke_cpu2000.json").read_text())["pose_errors"]
+    assert f"| {smoke['test_beta']['grasp']['p_mse_start_m2']:.4f} | 0.0040 |" in text
+    assert "needs weights (lerobot/pi0)" in text and "not run yet" in text and "does not carry" in text
+    assert "| 81.1 |" in text.split("## Table 2")[0]  # the paper's FlatLab Train
+
+
+def test_sweep_plot_is_drawn_from_records(tmp_path):
+    """Two lambda_pos records (one earlier file, one written here) give a table row each and a PNG."""
+    res = tmp_path / "results"
+    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns("plots"))
+    rec = json.loads((RESULTS / "executor_smoke_cpu2000.json").read_text())
+    new = {"splits": rec["pose_errors"], "paper_stage": {"fingerprint": "x", "machine": {}, "git": {}}}
+    (res / "executor_lambda_pos_3.0.json").write_text(json.dumps(new))
+    ctx = ctx_for("cpu", tmp_path, res)
+    text = R.tables(ctx, plots=tmp_path / "plots", page_dir=tmp_path)
+    assert "![λ_pos (position loss weight, λ_rot = 1)](plots/sens_lambda_pos.png)" in text
+    assert (tmp_path / "plots" / "sens_lambda_pos.png").stat().st_size > 5000
+    assert "| 3 | 0.0047 | 0.0047 |" in text  # ours (the copied record) beside the paper's lambda_pos = 3
+    assert "stale record" in text  # its fingerprint is not this registry's
+
+
+def test_readme_headline_is_the_rendered_one():
+    text = (REPO / "README.md").read_text()
+    m = re.search(r"<!-- results:headline -->\n(.*?)<!-- /results:headline -->", text, re.S)
+    assert m, "README.md lacks the <!-- results:headline --> block"
+    assert m[1] == R.headline(ctx_for("cpu")), "README headline is stale: flatlab paper --headline"
+
+
+def test_results_page_is_the_rendered_one():
+    """docs/results.md holds exactly the tables --render-only makes from docs/results/ (plots aside)."""
+    ctx = ctx_for("cpu")
+
+    def strip(text):  # without plot links / notes, blank lines collapsed
+        text = re.sub(r"^(!\[[^\]]*\]\([^)]*\)|Plot: not drawn.*)$", "", text, flags=re.M)
+        return re.sub(r"\n{2,}", "\n\n", text)
+
+    body = strip(R.tables(ctx, P.statuses(ctx), None, REPO / "docs"))
+    assert body in strip((REPO / "docs" / "results.md").read_text()), "docs/results.md is stale: flatlab paper --render-only"
+
+
+# ----------------------------------------------------------------------------- the tiny preset end to end
+def _table_lines(text: str, start: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith(start)]
+
+
+@pytest.mark.slow
+def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
+    out, res = tmp_path / "out", tmp_path / "res"
+    args = ["--preset", "tiny", "--out", str(out), "--results-dir", str(res)]
+    assert paper_main(args) == 0
+    ctx = P.context("tiny", out, res)
+    st = P.statuses(ctx)
+    ran = [n for n, s in st.items() if s.state == "done"]
+    assert set(ran) == set(ctx.stages)
+    for n in ran:  # every record carries its provenance
+        meta = st[n].record["paper_stage"]
+        assert {"command", "fingerprint", "seeds", "git", "wall_s", "machine", "device", "preset", "created"} <= set(meta)
+        assert meta["preset"] == "tiny" and meta["machine"]["cpu_count"] and meta["device"].startswith(("cpu", "cuda"))
+        assert "metrics" in st[n].record or ctx.stages[n].is_result
+    page = (res / "results.md").read_text()
+    # the rendered numbers are the results files' numbers
+    ev = json.loads((res / "tiny" / "eval_oracle.json").read_text())
+    for o in ev["per_object"]:
+        cell = f"{100 * o['G'] / o['trials']:.1f} ({o['G']}/{o['trials']})"
+        assert cell in _table_lines(page, "| scripted oracle")[0]
+    acc = json.loads((res / "tiny" / "strategy_cpu.json").read_text())["per_split"]
+    full = next(line for line in _table_lines(page, "| Full | the full model |") if "strategy" not in line)
+    assert full.split(" | ")[2] == f"{acc['train']['acc_catalog']:.1f}"
+    ex = json.loads((res / "tiny" / "executor_cpu.json").read_text())["splits"]["train"]["grasp"]
+    assert f"| {ex['p_mse_start_m2']:.4f} | 0.0032 |" in page
+    uni = json.loads((res / "tiny" / "eval_flatlab.json").read_text())["per_split"]["train"]
+    assert f"{100 * uni['G']:.1f} (" in _table_lines(page, "| FlatLab (flatlab_unified)")[0]
+    first = R.tables(ctx)
+    # cached: nothing to run
+    capsys.readouterr()
+    assert paper_main([*args, "--dry-run"]) == 0
+    assert not re.search(r"\s(run)\s", capsys.readouterr().out)
+    # same preset and seeds: a forced rerun of the training and its evaluation gives the same tables
+    before = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
+    assert paper_main([*args, "--force", "strategy_train_cpu", "strategy_cpu", "--no-render"]) == 0
+    after = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
+    assert after["paper_stage"]["created"] >= before["paper_stage"]["created"]
+    for key in ("per_split", "per_category", "per_object", "selection"):
+        assert after[key] == before[key], key
+    assert R.tables(P.context("tiny", out, res)) == first
