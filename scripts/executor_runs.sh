@@ -18,7 +18,7 @@ timed() {  # json-out cmd...: run cmd, write {"command", "wall_s"} to json-out
   local out=$1; shift
   local t0; t0=$(date +%s)
   "$@"
-  printf '{"command": "%s", "wall_s": %s, "machine": "%s CPU cores, no GPU"}\n' "$*" $(( $(date +%s) - t0 )) "$(nproc)" > "$out"
+  printf '{"command": "%s", "wall_s": %s, "machine": "%s CPU cores, no GPU"}\n' "$*" $(( $(date +%s) - t0 )) "$(nproc --all)" > "$out"
 }
 set_if() {  # out objects demos
   [ -f "$1/meta.json" ] || timed "$1.wall.json" $PY -m flatlab_lerobot.cli primitive-set --objects "$2" --demos "$3" --workers 2 --no-progress --out "$1"
