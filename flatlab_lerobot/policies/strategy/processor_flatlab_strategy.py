@@ -8,8 +8,10 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 
 
 def make_flatlab_strategy_pre_post_processors(config, dataset_stats=None):
+    # the (un)normalizer steps are identities (config.normalization_mapping), kept so the saved pipeline
+    # has the steps lerobot-train overrides on --resume / --policy.path (it fails without them)
     s = make_default_policy_processor_steps(config, None)
     return make_policy_processor_pipelines(
-        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device],
-        output_steps=[s.to_cpu],
+        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device, s.normalize],
+        output_steps=[s.unnormalize, s.to_cpu],
     )
