@@ -143,3 +143,21 @@ class Expert:
             yield "hold", len(STRATEGIES[strategy]) - 1, action
 
 
+
+
+class ExpertCache:
+    """One :class:`Expert` per (batch element, cell calibration), for the policies that run the expert's
+    kinematics inside ``select_action``: an expert holds IK state, so batch elements never share one,
+    and each is built once (building compiles a MuJoCo model) and reused by later episodes of that
+    element in the same cell.  ``cell``: ``observation.cell`` (None: the default cell)."""
+
+    def __init__(self, control_dt: float):
+        self.control_dt = control_dt
+        self._experts: dict = {}
+
+    def get(self, i: int, cell=None) -> Expert:
+        key = (i, None if cell is None else tuple(np.round(np.asarray(cell, np.float64), 6)))
+        if key not in self._experts:
+            cfg = None if key[1] is None else CellConfig.from_calibration(key[1])
+            self._experts[key] = Expert(cfg, self.control_dt)
+        return self._experts[key]

@@ -14,6 +14,7 @@ from torch import Tensor
 from flatlab_lerobot.lerobot_env import OBS_CELL
 from flatlab_lerobot.policies.scripted.configuration_flatlab_scripted import FlatLabScriptedConfig
 from flatlab_lerobot.sim.core import ENV_STATE_INDEX
+from flatlab_lerobot.strategies.expert import ExpertCache
 
 
 def pick_strategy(env_state, thick_threshold: float = 0.04) -> str:
@@ -47,21 +48,12 @@ class FlatLabScriptedPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self._experts: dict = {}
+        self._experts = ExpertCache(config.control_dt)
         self._episodes: list[_Episode] | None = None
 
     def _expert(self, i: int, cell: np.ndarray | None):
-        """Batch element ``i``'s expert for the cell with calibration ``cell`` (None: the default cell).
-        An expert holds IK state, so batch elements never share one; each is built once (building
-        compiles a MuJoCo model) and reused by later episodes of element ``i`` in the same cell."""
-        from flatlab_lerobot.sim.scene import CellConfig
-        from flatlab_lerobot.strategies import Expert
-
-        key = (i, None if cell is None else tuple(np.round(np.asarray(cell, np.float64), 6)))
-        if key not in self._experts:
-            cfg = None if key[1] is None else CellConfig.from_calibration(key[1])
-            self._experts[key] = Expert(cfg, self.config.control_dt)
-        return self._experts[key]
+        """Batch element ``i``'s expert for the cell with calibration ``cell`` (None: the default cell)."""
+        return self._experts.get(i, cell)
 
     def get_optim_params(self) -> dict:
         return self.parameters()

@@ -53,6 +53,7 @@ from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENER
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
+from flatlab_lerobot.strategies.expert import ExpertCache
 from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES, PASS_STAGES, overhang_missing, pass_needed
 
 
@@ -191,7 +192,7 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         self.config = config
         self.generator = FlatLabStrategyPolicy(config.generator)
         self.executor = FlatLabExecutorPolicy(config.executor)
-        self._experts: dict = {}
+        self._experts = ExpertCache(config.control_dt)
         self._episodes: list[_Episode] | None = None
 
     # ------------------------------------------------------------------ lerobot API
@@ -222,15 +223,8 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         return [list(e.log) for e in self._episodes or []]
 
     def _expert(self, i: int, cell: np.ndarray):
-        """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell; built
-        once per (element, cell) -- building compiles a MuJoCo model -- and never shared (it holds IK state)."""
-        from flatlab_lerobot.sim.scene import CellConfig
-        from flatlab_lerobot.strategies import Expert
-
-        key = (i, tuple(np.round(np.asarray(cell, np.float64), 6)))
-        if key not in self._experts:
-            self._experts[key] = Expert(CellConfig.from_calibration(key[1]), self.config.control_dt)
-        return self._experts[key]
+        """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell."""
+        return self._experts.get(i, cell)
 
     @torch.no_grad()
     def choose_strategy(self, object_cloud: np.ndarray) -> str:
