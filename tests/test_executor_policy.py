@@ -393,3 +393,41 @@ def test_object_frame_needs_the_object_cloud_feature():
         _policy(frame_center="object")
     with pytest.raises(ValueError, match="frame_center"):
         _policy(frame_center="table")
+
+
+# ------------------------------------------------------------------------------ test-time augmentation
+def test_tta_one_pass_is_the_plain_prediction_and_k_passes_average_rotated_frames():
+    pol = _policy(n_points=32)
+    batch = _batch(B=3)
+    plain = pol.predict_world(batch, tta=1)
+    assert pol.config.tta == 1
+    for a, b in zip(plain, pol.predict_world(batch)):
+        for k in a:
+            torch.testing.assert_close(a[k], b[k])
+    # a position head that says "b" in the model frame: pass j (frame rotated by 2*pi*j/k about z through
+    # the frame centre c) says c + Rz(-phi_j) b in the world; k >= 2 even turns cancel b's horizontal part
+    last = [m for m in pol.pos_head.modules() if isinstance(m, torch.nn.Linear)][-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        bias = torch.tensor([0.1, -0.05, 0.02, 0.04, 0.0, -0.03, 0.01, 0.01]).repeat(2)
+        last.bias.copy_(bias)
+    pol.eval()  # _cloud: the first n_points (training: a random subset)
+    c = pol._center(batch, pol._cloud(batch[C.OBS_POINTCLOUD].float()))
+    one = pol.predict_world(batch, tta=1)
+    torch.testing.assert_close(one[0]["start_pos"], c + bias[:3], atol=1e-5, rtol=0)
+    # pass j also reads another subset of the points (the cloud rolled by j * n_points): its own centre
+    full = batch[C.OBS_POINTCLOUD].float()
+    cj = [pol._center(batch, pol._cloud(torch.roll(full, -j * 32, dims=1))) for j in range(4)]
+    assert not torch.allclose(cj[0], cj[1])
+    # pass 1 of 4: 90 degrees; model (x, y) = Rz(90)(world - c): world = c + Rz(-90)(0.1, -0.05) = c + (-0.05, -0.1)
+    p1 = pol._world(batch, 1, 4)
+    torch.testing.assert_close(p1[0]["start_pos"] - cj[1], torch.tensor([-0.05, -0.1, 0.02]).expand(3, 3), atol=1e-5, rtol=0)
+    four = pol.predict_world(batch, tta=4)
+    torch.testing.assert_close(four[0]["start_pos"], torch.stack(cj).mean(0) + torch.tensor([0.0, 0.0, 0.02]), atol=1e-5, rtol=0)
+    for arm in four:  # quaternions stay unit, with w >= 0; the "active" probability stays in [0, 1]
+        for e in ("start_quat", "end_quat"):
+            torch.testing.assert_close(arm[e].norm(dim=-1), torch.ones(3), atol=1e-5, rtol=0)
+            assert (arm[e][:, 0] >= 0).all()
+        assert ((arm["active"] >= 0) & (arm["active"] <= 1)).all()
+    with pytest.raises(ValueError, match="--policy.tta"):
+        _policy(tta=0)

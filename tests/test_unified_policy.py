@@ -174,10 +174,10 @@ def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     calls = []
     orig = pol.executor.predict_poses
 
-    def spy(cloud, strategy, index, primitive, proprio, object_cloud=None):
+    def spy(cloud, strategy, index, primitive, proprio, object_cloud=None, tta=None):
         calls.append({"cloud": np.array(cloud), "obj": np.array(object_cloud), "strategy": strategy, "index": index,
-                      "primitive": primitive, "proprio": np.array(proprio)})  # fmt: skip
-        return orig(cloud, strategy, index, primitive, proprio, object_cloud=object_cloud)
+                      "primitive": primitive, "proprio": np.array(proprio), "tta": tta})  # fmt: skip
+        return orig(cloud, strategy, index, primitive, proprio, object_cloud=object_cloud, tta=tta)
 
     pol.executor.predict_poses = spy
     env = _env()
@@ -203,6 +203,16 @@ def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     env.close()
     assert [c["index"] for c in calls] == list(range(len(calls))) and len(calls) >= 2
     assert all(c["strategy"] == "B" and c["primitive"] == STAGE_SPECS["B"][c["index"]].primitive for c in calls)
+    assert all(c["tta"] is None for c in calls)  # executor_tta=0: the executor's own config (1 pass)
+
+
+def test_executor_tta_reaches_every_stage_call(tiny):
+    pol = _load(tiny["artifact"], strategy="B", executor_tta=3)
+    seen = []
+    orig = pol.executor.predict_world
+    pol.executor.predict_world = lambda batch, tta=None: (seen.append(tta), orig(batch, tta))[1]
+    _rollout([pol], steps=20)
+    assert seen and all(t == 3 for t in seen)
 
 
 @pytest.mark.parametrize("strategy", ["A", "B"])
@@ -222,6 +232,8 @@ def test_config_rejects_bad_values():
         FlatLabUnifiedConfig(strategy="D")
     with pytest.raises(ValueError, match="max_push_passes"):
         FlatLabUnifiedConfig(max_push_passes=4)
+    with pytest.raises(ValueError, match="--policy.executor_tta"):
+        FlatLabUnifiedConfig(executor_tta=-1)
     with pytest.raises(ValueError, match="input_key"):
         FlatLabUnifiedConfig(generator=FlatLabStrategyConfig(input_key="observation.scene_pointcloud"))
 

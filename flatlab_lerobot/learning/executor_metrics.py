@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 
-def evaluate(policy, dataset_root: Path, batch_size: int = 32) -> dict:
+def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None = None) -> dict:
     import torch
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -42,7 +42,7 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32) -> dict:
     policy.eval()
     ns = len(STRATEGY_NAMES)
     for batch in loader:
-        pred = policy.predict_world(batch)
+        pred = policy.predict_world(batch, tta)
         prim = batch[OBS_PRIMITIVE]
         strat = prim[:, :ns].argmax(1).tolist()
         stage = prim[:, ns : ns + MAX_STAGES].argmax(1).tolist()
@@ -92,7 +92,12 @@ def main(argv=None) -> int:
     ap.add_argument("--dataset", type=Path, action="append", required=True, help="exported dataset root (repeatable)")
     ap.add_argument("--out", type=Path, help="write the JSON here (default: print)")
     ap.add_argument("--batch-size", type=int, default=32)
+    ap.add_argument("--tta", type=int, default=None,
+                    help="test-time augmentation passes (flatlab_executor `tta`; default: the checkpoint's config)")
     args = ap.parse_args(argv)
+    if args.tta is not None and not 1 <= args.tta <= 64:
+        print(f"error: --tta {args.tta}: must be in [1, 64]", file=sys.stderr)
+        return 2
     if not (args.policy_path / "config.json").is_file():
         print(f"error: --policy.path {args.policy_path}: no config.json (give a .../pretrained_model folder)", file=sys.stderr)
         return 2
@@ -108,9 +113,10 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     pol = FlatLabExecutorPolicy.from_pretrained(args.policy_path)
     pol.to("cpu")
-    result = {"policy": str(args.policy_path), "ablation": pol.config.ablation, "splits": {}}
+    tta = pol.config.tta if args.tta is None else args.tta
+    result = {"policy": str(args.policy_path), "ablation": pol.config.ablation, "tta": tta, "splits": {}}
     for d in args.dataset:
-        for split, rows in evaluate(pol, d, args.batch_size).items():
+        for split, rows in evaluate(pol, d, args.batch_size, tta).items():
             result["splits"].setdefault(split, {}).update(rows)
     result["wall_s"] = round(time.perf_counter() - t0, 2)
     text = json.dumps(result, indent=1)

@@ -116,6 +116,11 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     aug_scale: list[float] = field(default_factory=lambda: [0.9, 1.1])
     aug_jitter_std: float = 0.002  # m
     aug_rot_z_deg: float = 180.0  # uniform in [-x, x] about the vertical axis through the cloud centre
+    # test-time augmentation (inference only): average the world-frame predictions over this many
+    # model frames, rotated about z by 360/k degree steps, each on a different subset of the cloud's
+    # points (1: one pass, the paper's).  Positions, grippers and "active" are averaged, quaternions
+    # sign-aligned and averaged.  Rotation about z is an augmentation the model was trained on.
+    tta: int = 1
     # optimizer (paper App. B: Adam, lr 1e-4, weight decay 1e-4)
     optimizer_lr: float = 1e-4
     optimizer_weight_decay: float = 1e-4
@@ -129,6 +134,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
 
         if self.n_points < 16:
             bad("n_points", f"must be >= 16, got {self.n_points}")
+        if not 1 <= int(self.tta) <= 64:
+            bad("tta", f"must be in [1, 64] (1: no test-time augmentation), got {self.tta}")
         if self.frame_center not in FRAME_CENTERS:
             bad("frame_center", f"must be one of {FRAME_CENTERS}, got {self.frame_center!r}")
         n = len(self.sa_npoints)

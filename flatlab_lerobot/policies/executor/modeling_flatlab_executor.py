@@ -255,14 +255,44 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
 
     # ---------------------------------------------------------------- inference
     @torch.no_grad()
-    def predict_world(self, batch: dict[str, Tensor]) -> list[dict[str, Tensor]]:
-        """Per arm (``ARMS`` order) dict of world-frame predictions, tensors (B, .)."""
+    def predict_world(self, batch: dict[str, Tensor], tta: int | None = None) -> list[dict[str, Tensor]]:
+        """Per arm (``ARMS`` order) dict of world-frame predictions, tensors (B, .).
+
+        ``tta`` (default ``config.tta``): k > 1 averages k passes, pass j in a model frame rotated by
+        2*pi*j/k about z and on the cloud's points rolled by j*n_points (another subset of them)."""
+        k = int(self.config.tta if tta is None else tta)
         was = self.training
         self.eval()
         try:
-            frame, pred = self._run(batch)
+            passes = [self._world(batch, j, k) for j in range(k)]
         finally:
             self.train(was)
+        if k == 1:
+            return passes[0]
+        out = []
+        for i in range(len(passes[0])):
+            arm = {}
+            for key in passes[0][i]:
+                v = torch.stack([p[i][key] for p in passes])  # (k, B, .)
+                if key.endswith("quat"):  # q and -q are one rotation: align to the first pass, then mean
+                    v = v * torch.where((v * v[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+                    m = v.mean(0)
+                    arm[key] = canonical(m / m.norm(dim=-1, keepdim=True).clamp(min=1e-12))
+                else:
+                    arm[key] = v.mean(0)
+            out.append(arm)
+        return out
+
+    def _world(self, batch: dict[str, Tensor], j: int, k: int) -> list[dict[str, Tensor]]:
+        """One inference pass (``j`` of ``k``) in world coordinates."""
+        frame = None
+        if j:
+            full = batch[OBS_POINTCLOUD].float()
+            batch = {**batch, OBS_POINTCLOUD: torch.roll(full, -j * self.config.n_points, dims=1)}
+            cloud = self._cloud(batch[OBS_POINTCLOUD].float())
+            base = self._frame(cloud, self._center(batch, cloud))
+            frame = SceneFrame(base.c, base.s, base.phi + 2 * math.pi * j / k)
+        frame, pred = self._run(batch, frame)
         out = []
         for p in pred:
             out.append({
@@ -292,7 +322,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         return self.predict_action_chunk(batch)[:, 0]
 
     @torch.no_grad()
-    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None, object_cloud=None) -> dict[str, dict]:
+    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None, object_cloud=None, tta=None) -> dict[str, dict]:
         """The unified policy's call: one decision.
 
         scene_cloud: (N, 3) or (B, N, 3) world-frame scene cloud (crop + cameras as the primitive set).
@@ -302,6 +332,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         required when ``config.use_proprio``.
         object_cloud: (K, 3) / (B, K, 3) world-frame segmented object cloud (env obs
         ``object_pointcloud``); required when ``config.frame_center == "object"``, ignored otherwise.
+        tta: test-time augmentation passes (default ``config.tta``; see ``predict_world``).
         Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
         "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
         primitive commands the arm (A's pushing / grasping arm depends on where the object is)."""
@@ -330,7 +361,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                 raise ValueError('predict_poses: object_cloud (K, 3) is required (config.frame_center="object")')
             batch[OBS_OBJECT_CLOUD] = torch.as_tensor(np.array(object_cloud, np.float32), device=dev).reshape(B, -1, 3)
         out = {}
-        for arm, p in zip(ARMS, self.predict_world(batch)):
+        for arm, p in zip(ARMS, self.predict_world(batch, tta)):
             n = {k: v.cpu().numpy() for k, v in p.items()}
             out[arm] = {"start": (n["start_pos"], n["start_quat"]), "end": (n["end_pos"], n["end_quat"]),
                         "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0]), "active": n["active"][:, 0]}  # fmt: skip

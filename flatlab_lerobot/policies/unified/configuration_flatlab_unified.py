@@ -71,12 +71,17 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the observed object cloud is farthest-point resampled to this many points before the generator
     # reads it, as the strategy set's clouds are (FPS of all object pixels to 2048); 0: fed as observed
     generator_cloud_points: int = 2048
+    # the executor's test-time augmentation passes per stage (flatlab_executor `tta`: k rotations about z
+    # and point subsets, predictions averaged); 0: the executor config's own value
+    executor_tta: int = 0
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
         super().__post_init__()
         if self.strategy not in STRATEGY_CHOICES:
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
+        if not 0 <= int(self.executor_tta) <= 64:
+            raise ValueError(f"--policy.executor_tta: must be in [0, 64] (0: the executor's own), got {self.executor_tta}")
         if not 1 <= int(self.max_push_passes) <= A_PASSES:
             raise ValueError(f"--policy.max_push_passes: must be in [1, {A_PASSES}], got {self.max_push_passes!r}")
         if self.generator_cloud_points < 0:

@@ -158,7 +158,8 @@ class _Episode:
             self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
             return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
         poses = self.policy.executor.predict_poses(
-            obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud
+            obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
+            tta=self.policy.config.executor_tta or None,
         )
         thr = self.policy.config.active_threshold
         prob = {a: float(poses[a]["active"][0]) for a in ARMS}

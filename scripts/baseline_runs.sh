@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The end-to-end baselines' measured runs (issue 18), resumable: for each recipe id (act, diffusion,
+# flatlab_dp3) train policies/<id>/cpu.json with the real lerobot-train on the successful demos of
+# outputs/datasets/baselines_cpu (resuming from the last checkpoint when one exists), then score the
+# last checkpoint with `flatlab eval` and write docs/results/eval_<id>.json (command, seeds, wall, commit).
+# Usage: scripts/baseline_runs.sh [id ...]   env: STEPS (override the recipe's), TRIALS (default 1), STAGE=train|eval|all
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
+BIN=${BIN:-$PWD/.venv/bin}
+TRIALS=${TRIALS:-1}; STAGE=${STAGE:-all}
+DATA=outputs/datasets/baselines_cpu
+[ -d "$DATA/meta" ] || $BIN/flatlab collect --recipe datasets/baselines_cpu.yaml
+OK=$($BIN/flatlab collect --recipe datasets/baselines_cpu.yaml --successful-episodes)
+for id in ${*:-act flatlab_dp3 diffusion}; do
+  out=outputs/train/${id}_cpu
+  case $id in
+    flatlab_dp3) flags=(--env.obs_pixels=false --env.n_points=1024) ;;
+    *) flags=(--env.image_size=64 --env.obs_pointcloud=false) ;;
+  esac
+  if [ "$STAGE" != eval ]; then
+    cmd=($BIN/lerobot-train --config_path=policies/$id/cpu.json --dataset.episodes="$OK" --output_dir=$out ${STEPS:+--steps=$STEPS})
+    last=$out/checkpoints/last/pretrained_model/train_config.json
+    if [ -f "$last" ]; then cmd=($BIN/lerobot-train --config_path=$last --resume=true ${STEPS:+--steps=$STEPS}); else rm -rf "$out"; fi
+    t0=$(date +%s)
+    "${cmd[@]}" >> outputs/logs/train_${id}_cpu.log 2>&1
+    prev=$(python3 -c "import json;print(json.load(open('$out/train_wall.json'))['train_wall_s'])" 2>/dev/null || echo 0)
+    echo "{\"recipe\": \"policies/$id/cpu.json\", \"train_wall_s\": $(( prev + $(date +%s) - t0 )), \"episodes\": \"successful demos of $DATA ($(echo "$OK" | tr ',' '\n' | wc -l))\", \"machine\": \"2 CPU cores, no GPU\"}" > $out/train_wall.json
+  fi
+  if [ "$STAGE" != train ]; then
+    ev=outputs/eval/${id}_cpu_t$TRIALS
+    rm -rf "$ev"; t0=$(date +%s)
+    $BIN/flatlab eval --policy $out/checkpoints/last/pretrained_model --trials $TRIALS --seed 1000 --workers 2 "${flags[@]}" --out $ev --quiet --no-plot
+    $BIN/python scripts/eval_record.py --results $ev/results.json --out docs/results/eval_$id.json --wall $(( $(date +%s) - t0 )) \
+      --train $out/train_wall.json --what "$id cpu recipe, last checkpoint; the 104 benchmark objects x $TRIALS trial(s), seed 1000" \
+      --command "scripts/baseline_runs.sh $id  (lerobot-train --config_path=policies/$id/cpu.json --dataset.episodes=<successful>; flatlab eval --policy $out/checkpoints/last/pretrained_model --trials $TRIALS --seed 1000 --workers 2 ${flags[*]})"
+  fi
+done
