@@ -3,7 +3,7 @@
 # flatlab_dp3) train policies/<id>/cpu.json with the real lerobot-train on the successful demos of
 # outputs/datasets/baselines_cpu (resuming from the last checkpoint when one exists), then score the
 # last checkpoint with `flatlab eval` and write docs/results/eval_<id>.json (eval_dp3.json for flatlab_dp3: the stage names of flatlab paper) (command, seeds, wall, commit).
-# Usage: scripts/baseline_runs.sh [id ...]   env: STEPS (override the recipe's), TRIALS (default 1), STAGE=train|eval|all
+# Usage: scripts/baseline_runs.sh [id ...]   env: STEPS / SAVE_FREQ (override the recipe's), TRIALS (default 1), STAGE=train|eval|all
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
@@ -19,7 +19,7 @@ for id in ${*:-act flatlab_dp3 diffusion}; do
     *) flags=(--env.image_size=64 --env.obs_pointcloud=false) ;;
   esac
   if [ "$STAGE" != eval ]; then
-    cmd=($BIN/lerobot-train --config_path=policies/$id/cpu.json --dataset.episodes="$OK" --output_dir=$out ${STEPS:+--steps=$STEPS})
+    cmd=($BIN/lerobot-train --config_path=policies/$id/cpu.json --dataset.episodes="$OK" --output_dir=$out ${STEPS:+--steps=$STEPS} ${SAVE_FREQ:+--save_freq=$SAVE_FREQ})
     last=$out/checkpoints/last/pretrained_model/train_config.json
     if [ -f "$last" ]; then cmd=($BIN/lerobot-train --config_path=$last --resume=true ${STEPS:+--steps=$STEPS}); else rm -rf "$out"; fi
     t0=$(date +%s)
