@@ -446,6 +446,8 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
         return f"**{_pct(*v['G'])} %**" if v else "–"
 
     lines.append(row("FlatLab (learned) grasp success G", g.get("FlatLab"), g_fmt, pt1["FlatLab"]))
+    if "3D Diffusion Policy" in g:  # the paper's strongest end-to-end baseline
+        lines.append(row("3D Diffusion Policy (end-to-end) G", g["3D Diffusion Policy"], g_fmt, pt1["3D Diffusion Policy"]))
     lines.append(row("scripted oracle grasp success G", g.get("oracle"), g_fmt, ["–"] * 3))
     lines.append(row("strategy generator accuracy", s_.get("Full"),
                      lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
