@@ -68,8 +68,10 @@ def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
     assert P.fingerprints(ctx)["executor_train_cpu"] != fp["executor_train_cpu"]
 
 
-def test_unmet_needs_block_a_stage_and_its_users(monkeypatch):
-    ctx = ctx_for("cpu")
+def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
+    res = tmp_path / "results"  # the measured records, less eval_slide's: a user of unified_cpu without a record
+    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns("plots", "eval_slide.json"))
+    ctx = ctx_for("cpu", tmp_path, res)
     st = P.statuses(ctx)
     assert st["eval_pi0"].state == "blocked" and "needs weights" in st["eval_pi0"].reason
     assert st["eval_desk_flatlab"].state == "blocked" and "does not carry" in st["eval_desk_flatlab"].reason
@@ -77,6 +79,7 @@ def test_unmet_needs_block_a_stage_and_its_users(monkeypatch):
     st = P.statuses(ctx)
     assert st["unified_cpu"].state == "blocked" and "no_such_module not in this tree" in st["unified_cpu"].reason
     # a user of the blocked stage without a record of its own is blocked too (eval_flatlab has one: earlier)
+    assert st["eval_flatlab"].state == "earlier"
     assert st["eval_slide"].state == "blocked" and st["eval_slide"].reason.startswith("unified_cpu:")
     monkeypatch.setattr(P, "_CUDA", [False])
     paper = P.statuses(ctx_for("paper"))
