@@ -4,9 +4,9 @@ the metrics as they are, plus what ran, the command, seeds, wall time, training 
 import argparse
 import json
 import os
-import platform
-import subprocess
 from pathlib import Path
+
+from flatlab_lerobot.paper.pipeline import device, git_commit, machine
 
 
 def main() -> None:
@@ -23,9 +23,9 @@ def main() -> None:
         rec = json.loads(a.results.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise SystemExit(f"--results {a.results}: cannot read flatlab eval results ({e})")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    rec.update(what=a.what, command=a.command, wall_s=round(a.wall), machine=f"{os.cpu_count()} CPU cores, no GPU ({platform.machine()})",
-               git_commit=commit)  # fmt: skip
+    m = machine()  # the same facts flatlab paper's stage records carry
+    rec.update(what=a.what, command=a.command, wall_s=round(a.wall), git_commit=(git_commit()["commit"] or "")[:7],
+               machine=f"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}")  # fmt: skip
     if a.note:
         rec["wall_note"] = a.note
     if a.train:
