@@ -167,7 +167,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         c_obj = (obj * seen[..., None]).sum(1) / n.clamp(min=1.0)
         return torch.where(n > 0, c_obj, c)
 
-    def _frame(self, cloud: Tensor, c: Tensor | None = None) -> SceneFrame:
+    def _frame(self, cloud: Tensor, c: Tensor | None = None, turn: float = 0.0) -> SceneFrame:
+        """``turn``: an extra rotation about z (rad) at inference (test-time augmentation)."""
         B = cloud.shape[0]
         c = cloud.mean(1) if c is None else c
         one, zero = cloud.new_ones(B), cloud.new_zeros(B)
@@ -177,7 +178,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             a = math.radians(self.config.aug_rot_z_deg)
             phi = (2 * torch.rand(B, device=cloud.device) - 1) * a
             return SceneFrame(c, s, phi)
-        return SceneFrame(c, one, zero)
+        return SceneFrame(c, one, zero + turn)
 
     def _conditioning(self, prim: Tensor) -> Tensor:
         if not self.config.decompose_primitives:  # A-5 / A-6: the strategy only, no primitive
@@ -191,10 +192,10 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             parts += [frame.pos_in(a[:, :3]), canonical(frame.quat_in(canonical(a[:, 3:7]))), a[:, 7:8]]
         return torch.cat(parts, 1)
 
-    def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None):
+    def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None, turn: float = 0.0):
         """-> (frame, per-arm predictions in the model frame)."""
         cloud = self._cloud(batch[OBS_POINTCLOUD].float())
-        frame = frame or self._frame(cloud, self._center(batch, cloud))
+        frame = frame or self._frame(cloud, self._center(batch, cloud), turn)
         x = frame.pos_in(cloud)
         if self.training and self.config.augment and self.config.aug_jitter_std > 0:
             x = x + self.config.aug_jitter_std * torch.randn_like(x)
@@ -285,14 +286,9 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
 
     def _world(self, batch: dict[str, Tensor], j: int, k: int) -> list[dict[str, Tensor]]:
         """One inference pass (``j`` of ``k``) in world coordinates."""
-        frame = None
         if j:
-            full = batch[OBS_POINTCLOUD].float()
-            batch = {**batch, OBS_POINTCLOUD: torch.roll(full, -j * self.config.n_points, dims=1)}
-            cloud = self._cloud(batch[OBS_POINTCLOUD].float())
-            base = self._frame(cloud, self._center(batch, cloud))
-            frame = SceneFrame(base.c, base.s, base.phi + 2 * math.pi * j / k)
-        frame, pred = self._run(batch, frame)
+            batch = {**batch, OBS_POINTCLOUD: torch.roll(batch[OBS_POINTCLOUD], -j * self.config.n_points, dims=1)}
+        frame, pred = self._run(batch, turn=2 * math.pi * j / k)
         out = []
         for p in pred:
             out.append({
