@@ -9,6 +9,7 @@ cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
 BIN=${BIN:-$PWD/.venv/bin}
 TRIALS=${TRIALS:-1}; STAGE=${STAGE:-all}
+MACHINE=$($BIN/python -c "from flatlab_lerobot.paper.pipeline import device, machine; m = machine(); print(f\"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}\")")
 DATA=outputs/datasets/baselines_cpu
 [ -d "$DATA/meta" ] || $BIN/flatlab collect --recipe datasets/baselines_cpu.yaml
 OK=$($BIN/flatlab collect --recipe datasets/baselines_cpu.yaml --successful-episodes)
@@ -25,7 +26,7 @@ for id in ${*:-act flatlab_dp3 diffusion}; do
     t0=$(date +%s)
     "${cmd[@]}" >> outputs/logs/train_${id}_cpu.log 2>&1
     prev=$(python3 -c "import json;print(json.load(open('$out/train_wall.json'))['train_wall_s'])" 2>/dev/null || echo 0)
-    echo "{\"recipe\": \"policies/$id/cpu.json\", \"train_wall_s\": $(( prev + $(date +%s) - t0 )), \"episodes\": \"successful demos of $DATA ($(echo "$OK" | tr ',' '\n' | wc -l))\", \"machine\": \"2 CPU cores, no GPU\"}" > $out/train_wall.json
+    echo "{\"recipe\": \"policies/$id/cpu.json\", \"train_wall_s\": $(( prev + $(date +%s) - t0 )), \"episodes\": \"successful demos of $DATA ($(echo "$OK" | tr ',' '\n' | wc -l))\", \"machine\": \"$MACHINE\"}" > $out/train_wall.json
   fi
   if [ "$STAGE" != train ]; then
     ev=outputs/eval/${id}_cpu_t$TRIALS

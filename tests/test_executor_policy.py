@@ -388,9 +388,46 @@ def test_object_frame_centres_on_the_seen_object_points():
     assert out["left"]["start"][0].shape == (1, 3)
 
 
+def test_object_table_frame_sits_on_the_table_under_the_object():
+    """frame_center="object_table": x, y from the object cloud's seen points, z the table plane (the
+    scene cloud's low height quantile): a raised table (the whole scene shifted up, as the scenes'
+    0.65-0.78 m tables) moves the origin and the predicted poses by the same amount."""
+    feats = {C.OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, (32, 3))}
+    pol = _policy(feats, frame_center="object_table", table_quantile=0.05)
+    pol.eval()
+    b = _batch(B=2)
+    cloud = b[C.OBS_POINTCLOUD].clone()
+    cloud[:, :100, 2] = 0.75  # a table under 100 of the 128 points
+    b[C.OBS_POINTCLOUD] = cloud
+    obj = cloud[:, 100:].clone()
+    obj[:, 20:] = 0.0
+    b[C.OBS_OBJECT_CLOUD] = obj
+    c = pol._center(b, pol._cloud(cloud))
+    torch.testing.assert_close(c[:, :2], obj[:, :20, :2].mean(1))
+    torch.testing.assert_close(c[:, 2], torch.full((2,), 0.75))
+    shift = torch.tensor([0.02, 0.01, -0.1])
+    b2 = dict(b)
+    b2[C.OBS_POINTCLOUD] = cloud + shift
+    o2 = obj.clone()
+    o2[:, :20] += shift
+    b2[C.OBS_OBJECT_CLOUD] = o2
+    tcp = b[C.OBS_TCP_STATE].clone()
+    for i in range(2):
+        tcp[:, 8 * i : 8 * i + 3] += shift
+    b2[C.OBS_TCP_STATE] = tcp
+    p1, p2 = pol.predict_world(b)[1], pol.predict_world(b2)[1]
+    torch.testing.assert_close(p2["end_pos"], p1["end_pos"] + shift, atol=1e-4, rtol=0)
+    with pytest.raises(ValueError, match="object_cloud"):
+        pol.predict_poses(cloud[0], "B", 2, "squeeze", b[C.OBS_TCP_STATE][0])
+    with pytest.raises(ValueError, match="table_quantile"):
+        _policy(feats, frame_center="object_table", table_quantile=0.7)
+
+
 def test_object_frame_needs_the_object_cloud_feature():
     with pytest.raises(ValueError, match="object_pointcloud"):
         _policy(frame_center="object")
+    with pytest.raises(ValueError, match="object_pointcloud"):
+        _policy(frame_center="object_table")
     with pytest.raises(ValueError, match="frame_center"):
         _policy(frame_center="table")
 

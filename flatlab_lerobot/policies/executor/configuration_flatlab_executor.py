@@ -49,7 +49,8 @@ OBS_POINTCLOUD = "observation.pointcloud"
 OBS_PRIMITIVE = "observation.primitive"
 OBS_TCP_STATE = "observation.tcp_state"
 OBS_OBJECT_CLOUD = "observation.object_pointcloud"
-FRAME_CENTERS = ("scene", "object")
+FRAME_CENTERS = ("scene", "object", "object_table")
+OBJECT_FRAMES = ("object", "object_table")  # frames that read observation.object_pointcloud
 TCP_STATE_DIM = 8 * len(ARMS)
 
 ARM_FIELDS = (("active", 1), ("start_pos", 3), ("start_quat", 4), ("end_pos", 3), ("end_quat", 4),
@@ -102,8 +103,12 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     use_proprio: bool = True
     # the model frame's origin: "scene" = the scene cloud's mean (paper App. B); "object" = the mean of
     # the segmented object cloud (observation.object_pointcloud, what the strategy generator reads):
-    # poses are then predicted relative to the object, not to the table
+    # poses are then predicted relative to the object, not to the table; "object_table" = the object's
+    # mean in x, y and the table plane in z (the ``table_quantile`` of the scene cloud's heights: the
+    # workspace crop starts at the table top, so its lowest points are the table): heights are then
+    # predicted above the table, which is what B's squeeze and C's pinch heights are
     frame_center: str = "scene"
+    table_quantile: float = 0.05
     # loss
     lambda_pos: float = 10.0  # paper App. D: P-MSE minimal for lambda_pos 5-10 with lambda_rot 1
     lambda_rot: float = 1.0
@@ -138,6 +143,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
             bad("tta", f"must be in [1, 64] (1: no test-time augmentation), got {self.tta}")
         if self.frame_center not in FRAME_CENTERS:
             bad("frame_center", f"must be one of {FRAME_CENTERS}, got {self.frame_center!r}")
+        if not 0.0 <= self.table_quantile < 0.5:
+            bad("table_quantile", f"must be in [0, 0.5), got {self.table_quantile}")
         n = len(self.sa_npoints)
         if n == 0 or not (len(self.sa_radii) == len(self.sa_nsamples) == len(self.sa_mlps) == n):
             bad("sa_npoints", "sa_npoints, sa_radii, sa_nsamples and sa_mlps need the same non-zero length")
@@ -188,7 +195,7 @@ class FlatLabExecutorConfig(PreTrainedConfig):
         need = {OBS_POINTCLOUD: None, OBS_PRIMITIVE: (PRIMITIVE_DIM,)}
         if self.use_proprio:
             need[OBS_TCP_STATE] = (TCP_STATE_DIM,)
-        if self.frame_center == "object":
+        if self.frame_center in OBJECT_FRAMES:
             need[OBS_OBJECT_CLOUD] = None
         for key, shape in need.items():
             ft = self.input_features.get(key)

@@ -23,6 +23,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     ARMS,
     GRASP_STAGE,
     MAX_STAGES,
+    OBJECT_FRAMES,
     OBS_OBJECT_CLOUD,
     OBS_POINTCLOUD,
     OBS_PRIMITIVE,
@@ -157,15 +158,21 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
 
     def _center(self, batch: dict[str, Tensor], cloud: Tensor) -> Tensor:
         """(B, 3) origin of the model frame: the scene cloud's mean, or (``frame_center="object"``) the
-        mean of the object cloud's seen points (all-zero rows are unseen; none seen: the scene mean)."""
+        mean of the object cloud's seen points (all-zero rows are unseen; none seen: the scene mean),
+        or (``"object_table"``) that mean in x, y with z on the table plane (``table_quantile`` of the
+        scene cloud's heights)."""
         c = cloud.mean(1)
-        if self.config.frame_center != "object":
+        if self.config.frame_center not in OBJECT_FRAMES:
             return c
         obj = batch[OBS_OBJECT_CLOUD].float()
         seen = (obj.abs().sum(-1) > 0).float()  # (B, K)
         n = seen.sum(1, keepdim=True)
         c_obj = (obj * seen[..., None]).sum(1) / n.clamp(min=1.0)
-        return torch.where(n > 0, c_obj, c)
+        c = torch.where(n > 0, c_obj, c)
+        if self.config.frame_center == "object_table":
+            z = torch.quantile(cloud[..., 2], self.config.table_quantile, dim=1)
+            c = torch.cat([c[:, :2], z[:, None]], 1)
+        return c
 
     def _frame(self, cloud: Tensor, c: Tensor | None = None, turn: float = 0.0) -> SceneFrame:
         """``turn``: an extra rotation about z (rad) at inference (test-time augmentation)."""
@@ -327,7 +334,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         proprio: (16,) / (B, 16) per arm measured TCP pos (3), quat wxyz (4), finger opening (1);
         required when ``config.use_proprio``.
         object_cloud: (K, 3) / (B, K, 3) world-frame segmented object cloud (env obs
-        ``object_pointcloud``); required when ``config.frame_center == "object"``, ignored otherwise.
+        ``object_pointcloud``); required when ``config.frame_center`` is "object" / "object_table", ignored otherwise.
         tta: test-time augmentation passes (default ``config.tta``; see ``predict_world``).
         Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
         "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
@@ -352,9 +359,9 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                 raise ValueError("predict_poses: proprio (16,) is required (config.use_proprio=true)")
             pr = torch.as_tensor(np.array(proprio, np.float32), device=dev).reshape(B, TCP_STATE_DIM)
             batch[OBS_TCP_STATE] = pr
-        if self.config.frame_center == "object":
+        if self.config.frame_center in OBJECT_FRAMES:
             if object_cloud is None:
-                raise ValueError('predict_poses: object_cloud (K, 3) is required (config.frame_center="object")')
+                raise ValueError(f"predict_poses: object_cloud (K, 3) is required (config.frame_center={self.config.frame_center!r})")
             batch[OBS_OBJECT_CLOUD] = torch.as_tensor(np.array(object_cloud, np.float32), device=dev).reshape(B, -1, 3)
         out = {}
         for arm, p in zip(ARMS, self.predict_world(batch, tta)):
