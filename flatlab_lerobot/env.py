@@ -31,7 +31,8 @@ The cell: ``scene`` (an ``envs/scenes`` id, e.g. ``kitchen_counter``: table size
 material, room dressing) or ``cell`` (a ``CellConfig``); neither = the plain default cell.
 
 ``task="clear_desk"`` (a scenario, ``tasks.SCENARIOS``): every reset draws a desk layout of five
-objects in one cell (``options["desk_seed"]`` picks one); the privileged state and the object cloud
+objects in one cell (``options["desk_seed"]`` picks one, else the reset's seed: ``tasks.clear_desk.sample_desk(seed)``,
+the layout ``flatlab desk --seeds`` runs); the privileged state and the object cloud
 refer to the first object still on the table; set ``episode_length`` to the scenario's (1450).
 
 Domain randomization: ``reset(options={"domain": Domain(...)})`` (or its ``to_json`` dict) sets the
@@ -239,8 +240,10 @@ class FlatLabEnv(gym.Env):
         x, y, yaw = self.reset_distribution.sample(rng)
         if "placement" in options:  # explicit (x, y, yaw)
             x, y, yaw = (float(v) for v in options["placement"])
-        if self.task in SCENARIOS:  # a new desk layout (objects, poses) per reset, or options["desk_seed"]'s
-            self._build(self.object_id, SCENARIOS[self.task].layout(int(options.get("desk_seed", rng.integers(2**31)))))
+        if self.task in SCENARIOS:  # a new desk layout (objects, poses) per reset: options["desk_seed"]'s, else
+            # the episode seed's (so `flatlab eval --seed S` trial t runs `flatlab desk`'s desk S + t), else a random one
+            desk_seed = options.get("desk_seed", seed if seed is not None else rng.integers(2**31))
+            self._build(self.object_id, SCENARIOS[self.task].layout(int(desk_seed)))
             first = self.layout.items[0]
             x, y, yaw = first.x, first.y, first.yaw
         self.placement = (float(x), float(y), float(yaw))

@@ -183,6 +183,8 @@ def test_env_task_clear_desk():
         assert env.layout.object_ids == ids  # seeded
         env.reset(options={"desk_seed": EXPERT_SEED})
         assert env.layout == sample_desk(EXPERT_SEED, CFG)
+        env.reset(seed=3)  # a seeded reset runs that seed's desk (the one `flatlab desk --seeds 3` runs)
+        assert env.layout == sample_desk(3, CFG)
         for _ in range(5):
             obs, r, term, trunc, info = env.step(env.sim.joint_positions())
         assert r == 0.0 and not term and trunc and not info["is_success"]

@@ -27,7 +27,7 @@ from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabE
 from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import INPUTS, FlatLabUnifiedConfig
-from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy, _Episode
+from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy, Observed, _Episode
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES, World
 
 BIN = Path(sys.executable).parent
@@ -268,6 +268,74 @@ def test_push_passes_are_decided_from_the_object_cloud_and_the_cell(tiny, x0, x1
     # the first pass never is a decision
     ep.index = 0
     assert ep._skip_pass(obs) is False
+
+
+def _desk_observed(sim, cloud_shift=None) -> "Observed":
+    """What the policy would observe of ``sim`` (its target's corner points standing in for the
+    object cloud; ``cloud_shift`` moves them, e.g. into the bin)."""
+    pts = sim.object_points().copy()
+    if cloud_shift is not None:
+        pts = pts + cloud_shift
+    return Observed(sim.joint_positions().astype(float), sim.cell.calibration(), np.zeros((N, 3)), pts)
+
+
+def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
+    """clear_all (the clear_desk scenario): after the final hold, an object cloud held aloft is carried
+    past the usable edge by the arms that lifted it and let go, the env's next object becomes the
+    target, and a new attempt starts on it; a cloud still on the table sends the arms home instead (and
+    the attempt is retried); with nothing on the table the policy holds."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.sim.robot import HOME_Q
+    from flatlab_lerobot.strategies import Expert
+    from flatlab_lerobot.tasks.clear_desk import DeskItem, DeskLayout, advance_target, make_desk_sim
+
+    lay = DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),
+                         DeskItem(get_object("painting_square_modern"), -0.16, 0.0, -0.1)))  # fmt: skip
+    sim = make_desk_sim(lay)
+    expert = Expert(sim.cell, sim.control_dt)
+    gen = expert.episode("B", lambda: (sim.joint_positions(), sim.environment_state()))
+    for _ in range(200):  # the scripted expert lifts the first object (B) and holds it
+        stage, _, action = next(gen)
+        sim.step(action)
+        if sim.is_success():
+            break
+    assert sim.is_success() and sim.holding_arms() == ("left", "right")
+
+    pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5)
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
+    ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
+    ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
+    for _ in range(200):  # the policy takes over after its hold, on observations only
+        sim.step(ep.act(_desk_observed(sim)))
+        advance_target(sim)
+        if len(ep.attempts) == 2:
+            break
+    afters = lambda: [d["after"] for d in ep.log if "after" in d]  # noqa: E731
+    assert afters() == ["carry"]
+    assert sim.lifted[0] and sim.off_table(0) and sim.target_index == 1  # dropped past the edge; next object
+    assert ep.attempts == ["B", "B"] and ep.index == 0  # started over: the first stage of the next attempt
+
+    # a failed attempt (the cloud still lies on the table): home, not a carry, and a retry
+    ep.actions, ep.index, ep.lift_arms = None, len(STRATEGIES["B"]) - 1, ("left",)
+    settled = []
+    for _ in range(100):
+        a = ep.act(_desk_observed(sim))
+        sim.step(a)
+        if ep.stage == "hold":  # settling after the move home
+            settled.append(np.r_[a[0:7], a[8:15]])
+        if len(ep.attempts) == 3:
+            break
+    assert afters() == ["carry", "home"]
+    assert len(settled) == 5  # settle_s = 0.5 s at 10 Hz, at the home posture
+    np.testing.assert_allclose(settled, np.tile(np.r_[HOME_Q, HOME_Q], (5, 1)), atol=1e-6)
+    assert len(ep.attempts) == 3
+
+    # nothing on the table (the cloud lies in the bin): no new attempt starts
+    ep.actions, ep.after, ep.started, ep.strategy = None, None, False, None
+    bin_cloud = np.array([0.0, 0.0, -0.4])
+    for _ in range(5):
+        ep.act(_desk_observed(sim, bin_cloud))
+    assert ep.stage == "hold" and len(ep.attempts) == 3 and ep.strategy is None
 
 
 def test_stage_specs_name_the_primitives_the_expert_poses():

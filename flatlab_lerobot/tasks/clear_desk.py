@@ -290,7 +290,15 @@ def _smooth(n: int):
 
 def carry_candidates(sim: FlatLabSim, arms: tuple[str, ...]) -> list[np.ndarray]:
     """Displacements (3,) that carry the held target past the usable edge, for every holding
-    hand, preferred first (:func:`carry_off` takes the first the arms can follow).
+    hand, preferred first (:func:`carry_off` takes the first the arms can follow): the expert's
+    call, from the simulation's object; :func:`carry_displacements` is the geometry."""
+    return carry_displacements(sim.object_points(), sim.object_pose()[0], sim.cell.edge_x, arms)
+
+
+def carry_displacements(points: np.ndarray, centre: np.ndarray, edge_x: float, arms: tuple[str, ...]) -> list[np.ndarray]:
+    """Displacements (3,) that carry an object with these ``points`` (K, 3) and ``centre`` (3,),
+    held by ``arms``, past the usable edge at ``edge_x``, preferred first.  The expert passes the
+    simulation's object; a learned policy its observed object cloud (:mod:`flatlab_lerobot.policies.unified`).
 
     Two hands (strategy B, the object squeezed between them: the shorter the carry, the less it
     creeps in the grip): the object's centre goes CARRY_MARGIN past the edge (it tips off when let
@@ -298,9 +306,9 @@ def carry_candidates(sim: FlatLabSim, arms: tuple[str, ...]) -> list[np.ndarray]
     furthest); failing those, the whole footprint CARRY_MARGIN past the edge, the same ways.  One hand (A: it pinches the object's front edge, the
     object trails towards the table): the object's centre goes 2 x CARRY_MARGIN past the edge
     and the hand 10 cm towards its own arm's side, or straight on."""
-    pts = sim.object_points()
-    pos = sim.object_pose()[0]
-    edge = sim.cell.edge_x
+    pts = np.asarray(points, float).reshape(-1, 3)
+    pos = np.asarray(centre, float)
+    edge = float(edge_x)
     if len(arms) == 2:
         full = max(0.0, edge + CARRY_MARGIN - float(pts[:, 0].min()))
         tip = max(0.0, edge + CARRY_MARGIN - float(pos[0]))
@@ -338,16 +346,25 @@ def _horizontal_unit(v: np.ndarray) -> np.ndarray:
 
 
 def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float]):
-    """After a successful lift: carry the target past the usable edge (the first of
-    :func:`carry_candidates` whose plan the arms can follow within 5 mm, else the best one),
-    let go, go home.  Yields (stage, action (16,)).  ``q`` (14,) / ``grip`` are the last
-    commanded joints / gripper widths."""
+    """After a successful lift: carry the target past the usable edge, let go, go home (the
+    expert's call: holding arms, object and its centre from the simulation; :func:`carry_and_release`).
+    Yields (stage, action (16,))."""
+    arms = sim.holding_arms() or ARMS
+    yield from carry_and_release(expert, arms, carry_candidates(sim, arms), lambda: sim.object_pose()[0], q, grip)
+
+
+def carry_and_release(expert, arms: tuple[str, ...], candidates: list[np.ndarray], centre, q: np.ndarray,
+                      grip: dict[str, float]):
+    """Carry the hands of ``arms`` by the first of ``candidates`` (:func:`carry_displacements`) whose
+    plan the arms can follow within 5 mm (else the best one), let go, go home.  Yields (stage,
+    action (16,)).  ``q`` (14,) / ``grip`` are the last commanded joints / gripper widths;
+    ``centre()`` is the object's centre once carried (the hands back away from it), asked when
+    the release is planned.  Plans on ``expert``'s kinematic model only."""
     from flatlab_lerobot.primitives import ArmMotion, Primitive
 
-    arms = sim.holding_arms() or ARMS
     poses = expert.fk(q)
     best, best_err = None, float("inf")
-    for dp in carry_candidates(sim, arms):
+    for dp in candidates:
         acts, err = _plan_carry(expert, arms, poses, dp, q, grip)
         if best is None or err < best_err:
             best, best_err = acts, err
@@ -361,10 +378,10 @@ def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float]):
     release = {a: ArmMotion(poses[a], poses[a], (grip[a], GRIPPER_MAX_WIDTH)) for a in arms}
     yield from expert.runner.actions(Primitive("release", release, 0.5), q, grip)
     q, grip = expert.runner.q, expert.runner.grip
-    centre = sim.object_pose()[0]
+    c = np.asarray(centre(), float)
     motions = {}
     for a in arms:
-        away = _horizontal_unit(poses[a][0] - centre) * 0.10
+        away = _horizontal_unit(poses[a][0] - c) * 0.10
         motions[a] = ArmMotion(poses[a], (poses[a][0] + away, poses[a][1]), (GRIPPER_MAX_WIDTH,) * 2)
     yield from expert.runner.actions(Primitive("move", motions, 1.0), q, grip)
     q, grip = expert.runner.q, expert.runner.grip

@@ -18,6 +18,11 @@ expert's timing.
 every object: ``A`` is the learned Slide baseline and ``B`` the learned Lift baseline of the paper's
 tables (the same executor, the strategy fixed).
 
+``clear_all``: several objects per episode (the ``clear_desk`` scenario, ``--env.task=clear_desk``):
+after the final hold the policy carries the lifted object past the usable edge and lets go (or goes
+home when the object cloud shows it still on the table), then starts over on the object cloud the env
+shows next; every decision again from observations only.
+
 Inputs it reads (and keeps as its only ``input_features``): ``observation.state`` (16: joints +
 finger widths), ``observation.cell`` (7: table and arm-base calibration -> its kinematic model),
 ``observation.pointcloud`` (scene, N x 3) and ``observation.object_pointcloud`` (K x 3).  It never
@@ -74,6 +79,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the executor's test-time augmentation passes per stage (flatlab_executor `tta`: k rotations about z
     # and point subsets, predictions averaged); 0: the executor config's own value
     executor_tta: int = 0
+    # several objects per episode (the clear_desk scenario): after the final hold, carry what the lifting
+    # arms hold past the usable edge (observation.cell) and let go, or, when the object cloud is not
+    # aloft, go home; wait ``settle_s``; then start again -- a new strategy from the object cloud the env
+    # shows now (the next object, or the same one after a failed attempt), while it lies on the table
+    clear_all: bool = False
+    settle_s: float = 1.0
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -88,6 +99,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.generator_cloud_points: must be >= 0, got {self.generator_cloud_points!r}")
         if not 0.0 < self.active_threshold < 1.0:
             raise ValueError(f"--policy.active_threshold: must be in (0, 1), got {self.active_threshold!r}")
+        if not 0.0 <= self.settle_s <= 10.0:
+            raise ValueError(f"--policy.settle_s: must be in [0, 10] s, got {self.settle_s!r}")
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
         if self.generator.input_key != GENERATOR_INPUT:

@@ -26,7 +26,8 @@ Per episode of batch element ``i``, on what the robot observes only:
    primitive set drops them: no arm moves in them), and at most ``config.max_push_passes`` run.
    Which arm pushes / grasps comes from the executor's ``active`` head.
 5. the final ``hold`` stage (never a training sample: no arm moves) holds still for the expert's
-   2.6 s; then the last action is repeated.
+   2.6 s; then the last action is repeated -- or, with ``config.clear_all`` (the ``clear_desk``
+   scenario), the object is carried off and the state machine starts over (:meth:`_Episode._after_hold`).
 
 ``strategies`` / ``stages`` / ``stage_indices`` expose, per batch element, the chosen strategy (``flatlab
 eval`` fills column S from it), the primitive the last action belongs to ("move" during a transit) and
@@ -55,6 +56,10 @@ from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
 from flatlab_lerobot.strategies.expert import ExpertCache
 from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES, PASS_STAGES, overhang_missing, pass_needed
+from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home
+
+ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
+ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
 
 
 @dataclass
@@ -65,6 +70,20 @@ class Observed:
     cell: np.ndarray  # (7,) calibration
     cloud: np.ndarray  # (N, 3) scene cloud, world frame
     object_cloud: np.ndarray  # (K, 3) object cloud, world frame (zeros: not seen)
+
+    @property
+    def table_top(self) -> float:
+        return float(self.cell[0])  # CellConfig.calibration: table top height first
+
+    @property
+    def edge_x(self) -> float:
+        return float(self.cell[1]) / 2  # table depth / 2: the usable edge (CellConfig.edge_x)
+
+    @property
+    def object_points(self) -> np.ndarray:
+        """The seen object points (M, 3) (all-zero rows are unseen)."""
+        pts = np.asarray(self.object_cloud, float).reshape(-1, 3)
+        return pts[np.abs(pts).sum(1) > 0]
 
     @property
     def q14(self) -> np.ndarray:
@@ -100,10 +119,12 @@ def object_footprint_x(object_cloud: np.ndarray) -> tuple[float, float] | None:
 
 
 class _Episode:
-    """One batch element's episode: the strategy, the stage being executed and the commanded joints."""
+    """One batch element's episode: the strategy, the stage being executed and the commanded joints.
+    With ``clear_all`` an episode holds several attempts (one per object, or retries), one after another."""
 
     def __init__(self, policy: FlatLabUnifiedPolicy, expert, strategy: str | None):
         self.policy, self.expert = policy, expert
+        self.fixed = strategy  # None: learned
         self.strategy = strategy  # None until the first observation (learned)
         self.index = -1  # stage index in STRATEGIES[strategy]
         self.stage: str | None = None  # primitive name of the last action ("move": a transit)
@@ -111,16 +132,36 @@ class _Episode:
         self.grip: dict[str, float] = {}
         self.last: np.ndarray | None = None
         self.actions = None
+        self.after = None  # clear_all: the carry-off / go-home / settle actions after the final hold
+        self.lift_arms: tuple[str, ...] = ()  # the arms the last posed stage commanded (they hold what was lifted)
+        self.obs: Observed | None = None
+        self.started = False  # the current attempt has its strategy
+        self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
 
     def act(self, obs: Observed) -> np.ndarray:
+        self.obs = obs
         if self.q is None:
             self.q, self.grip = obs.q14.copy(), obs.fingers
             self.last = joint_action(self.q, self.grip)
+        if not self.started:
+            if self.policy.config.clear_all and not self._object_on_table(obs):
+                self.stage = "hold"  # nothing (more) on the table to start on
+                return self.last
             if self.strategy is None:
                 self.strategy = self.policy.choose_strategy(obs.object_cloud)
+            self.started = True
+            self.attempts.append(self.strategy)
         n_stages = len(STRATEGIES[self.strategy])
         while True:
+            if self.after is not None:
+                step = next(self.after, None)
+                if step is not None:
+                    self.stage, self.last = step
+                    return self.last
+                self.after = None
+                self._restart()
+                return self.act(obs)
             if self.actions is not None:
                 step = next(self.actions, None)
                 if step is not None:
@@ -129,12 +170,50 @@ class _Episode:
                 self.actions = None
                 self.q, self.grip = self.expert.runner.q.copy(), dict(self.expert.runner.grip)
             if self.index + 1 >= n_stages:
+                if self.policy.config.clear_all:
+                    self.after = self._after_hold(obs)
+                    continue
                 self.stage = "hold"
                 return self.last
             self.index += 1
             if self._skip_pass(obs):
                 continue
             self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip)
+
+    # -------------------------------------------------------------- several objects (clear_all)
+    @staticmethod
+    def _object_on_table(obs: Observed) -> bool:
+        pts = obs.object_points
+        return bool(len(pts)) and float(pts[:, 2].max()) > obs.table_top - ON_TABLE_BELOW
+
+    def _after_hold(self, obs: Observed):
+        """After the final hold: if the object cloud is aloft, carry it past the usable edge with the
+        arms that lifted it and let go (``tasks.clear_desk.carry_and_release``: the expert's carry, planned
+        on the kinematic model from the observed cloud and cell instead of the simulation); else go home.
+        Then hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
+        pts = obs.object_points
+        aloft = bool(len(pts)) and float(pts[:, 2].min()) > obs.table_top + ALOFT_CLEARANCE
+        arms = self.lift_arms or ARMS
+        self.log.append({"index": self.index, "after": "carry" if aloft else "home", "arms": list(arms)})
+        if aloft:
+            cands = carry_displacements(pts, pts.mean(0), obs.edge_x, arms)
+            centre = lambda: (self.obs.object_points.mean(0) if len(self.obs.object_points) else pts.mean(0))  # noqa: E731
+            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip)
+        else:
+            actions = go_home(self.q, self.grip)
+        last = None
+        for step in actions:
+            last = step[1]
+            yield step
+        last = self.last if last is None else last
+        for _ in range(round(self.policy.config.settle_s / self.policy.config.control_dt)):
+            yield "hold", last
+
+    def _restart(self) -> None:
+        """Start a new attempt from the joints commanded last (the strategy is chosen again)."""
+        self.q = np.r_[self.last[0:7], self.last[8:15]].copy()
+        self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
+        self.strategy, self.index, self.lift_arms, self.started = self.fixed, -1, (), False
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
@@ -144,8 +223,7 @@ class _Episode:
         if self.strategy != "A" or self.index % PASS_STAGES or not 1 <= p < A_PASSES:
             return False
         foot = object_footprint_x(obs.object_cloud)
-        edge_x = float(obs.cell[1]) / 2  # table depth / 2: the usable edge (CellConfig.edge_x)
-        missing = None if foot is None else overhang_missing(foot[0], foot[1], edge_x)
+        missing = None if foot is None else overhang_missing(foot[0], foot[1], obs.edge_x)
         skip = p >= self.policy.config.max_push_passes or (missing is not None and not pass_needed(missing))
         self.log.append({"index": self.index, "pass": p, "missing": missing, "skipped": bool(skip)})
         if skip:
@@ -170,6 +248,7 @@ class _Episode:
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
             motions[a] = ArmMotion((p0[0].astype(float), _rotmat(q0[0])), (p1[0].astype(float), _rotmat(q1[0])), (g0, g1))
             duration = max(duration, spec.for_motion(p0[0], p1[0]))
+        self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
                          "duration": duration})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
@@ -217,6 +296,11 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
     def stage_indices(self) -> list[int]:
         """Per batch element, the stage index in ``strategies.STRATEGIES[strategy]`` (-1: not started)."""
         return [e.index for e in self._episodes or []]
+
+    @property
+    def attempts(self) -> list[list[str]]:
+        """Per batch element, the strategy of every attempt of the episode (one, unless ``clear_all``)."""
+        return [list(e.attempts) for e in self._episodes or []]
 
     @property
     def decisions(self) -> list[list[dict]]:
