@@ -344,7 +344,7 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
 
 
 @pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
-                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6")])  # fmt: skip
+                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6"), ("object_encoder", "full")])  # fmt: skip
 def test_recipes_parse_into_the_config(name, ablation):
     import draccus
 
@@ -353,6 +353,7 @@ def test_recipes_parse_into_the_config(name, ablation):
     assert d["policy"]["type"] == "flatlab_executor"
     cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
     assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
+    assert cfg.object_mlp == pol.get("object_mlp", [])
     assert d["dataset"]["root"] and d["steps"] > 0
 
 
@@ -421,6 +422,55 @@ def test_object_table_frame_sits_on_the_table_under_the_object():
         pol.predict_poses(cloud[0], "B", 2, "squeeze", b[C.OBS_TCP_STATE][0])
     with pytest.raises(ValueError, match="table_quantile"):
         _policy(feats, frame_center="object_table", table_quantile=0.7)
+
+
+def test_object_encoder_reads_the_object_cloud_shape_in_the_model_frame():
+    """object_mlp: a PointNet on the object cloud's seen points joins F_env.  Turning the object cloud
+    about its own centre (same frame origin, same scene cloud) changes the prediction only with the
+    encoder; a whole-scene translation still moves the poses with it; unseen rows never count (a cloud
+    with none seen gives a zero feature); training trains it."""
+    feats = {C.OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, (32, 3))}
+    plain = _policy(feats, frame_center="object_table")
+    enc = _policy(feats, frame_center="object_table", object_mlp=[16, 32], n_object_points=24)
+    b = _batch(B=2)
+    cloud = b[C.OBS_POINTCLOUD].clone()
+    cloud[:, :100, 2] = 0.75
+    b[C.OBS_POINTCLOUD] = cloud
+    obj = cloud[:, 100:].clone()
+    obj[:, 20:] = 0.0
+    b[C.OBS_OBJECT_CLOUD] = obj
+    turned = obj.clone()
+    m = obj[:, :20].mean(1, keepdim=True)
+    d = obj[:, :20] - m
+    turned[:, :20] = m + torch.stack([-d[..., 1], d[..., 0], d[..., 2]], -1)  # 90 degrees about z
+    bt = {**b, C.OBS_OBJECT_CLOUD: turned}
+    for pol in (plain, enc):
+        pol.eval()
+    same = lambda pol: torch.allclose(pol.predict_world(b)[0]["start_pos"], pol.predict_world(bt)[0]["start_pos"])  # noqa: E731
+    assert same(plain) and not same(enc)
+    shift = torch.tensor([0.03, -0.02, 0.0])
+    tcp = b[C.OBS_TCP_STATE].clone()
+    for i in range(2):
+        tcp[:, 8 * i : 8 * i + 3] += shift
+    o2 = obj.clone()
+    o2[:, :20] += shift
+    b2 = {**b, C.OBS_POINTCLOUD: cloud + shift, C.OBS_OBJECT_CLOUD: o2, C.OBS_TCP_STATE: tcp}
+    torch.testing.assert_close(enc.predict_world(b2)[1]["end_pos"], enc.predict_world(b)[1]["end_pos"] + shift,
+                               atol=1e-4, rtol=0)  # fmt: skip
+    frame = enc._frame(cloud, enc._center(b, enc._cloud(cloud)))
+    interleaved = torch.zeros(2, 32, 3)  # the same 20 seen points (all fit in 24 slots) between unseen rows
+    interleaved[:, 1::2][:, :16] = obj[:, :16]
+    interleaved[:, 0::2][:, 12:16] = obj[:, 16:20]
+    assert torch.count_nonzero(interleaved.abs().sum(-1)) == 40
+    torch.testing.assert_close(enc._object_feature(frame, interleaved), enc._object_feature(frame, obj))
+    none = enc._object_feature(frame, torch.zeros(2, 32, 3))
+    assert torch.count_nonzero(none) == 0
+    enc.train()
+    loss, _ = enc.forward(b)
+    loss.backward()
+    assert enc.object_encoder.net[0].weight.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="object_mlp"):
+        _policy(frame_center="scene", object_mlp=[16])
 
 
 def test_object_frame_needs_the_object_cloud_feature():

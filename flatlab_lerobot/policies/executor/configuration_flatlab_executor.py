@@ -109,6 +109,12 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     # predicted above the table, which is what B's squeeze and C's pinch heights are
     frame_center: str = "scene"
     table_quantile: float = 0.05
+    # a second encoder on the segmented object cloud (``observation.object_pointcloud``, in the same model
+    # frame): a PointNet (shared MLP of these widths + max pool over the seen points) whose feature joins
+    # F_env.  In the 1024-point scene cloud a thin object is a few dozen points a few mm above the table;
+    # its own cloud shows its outline and height directly.  [] (default, the paper's): scene cloud only
+    object_mlp: list[int] = field(default_factory=list)
+    n_object_points: int = 256  # object points fed to that encoder (random subset in training, the first n at eval)
     # loss
     lambda_pos: float = 10.0  # paper App. D: P-MSE minimal for lambda_pos 5-10 with lambda_rot 1
     lambda_rot: float = 1.0
@@ -137,6 +143,13 @@ class FlatLabExecutorConfig(PreTrainedConfig):
         def bad(name, msg):
             raise ValueError(f"flatlab_executor config: --policy.{name}: {msg}")
 
+        if any(int(c) < 1 for c in self.object_mlp):
+            bad("object_mlp", f"widths must be >= 1, got {self.object_mlp}")
+        if self.object_mlp and self.frame_center not in OBJECT_FRAMES:
+            bad("object_mlp", f"an object encoder needs frame_center in {OBJECT_FRAMES} (the object cloud input), "
+                f"got {self.frame_center!r}")
+        if self.n_object_points < 1:
+            bad("n_object_points", f"must be >= 1, got {self.n_object_points}")
         if self.n_points < 16:
             bad("n_points", f"must be >= 16, got {self.n_points}")
         if not 1 <= int(self.tta) <= 64:

@@ -131,7 +131,13 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         c = config
         self.encoder = PointNet2Encoder(c.sa_npoints, c.sa_radii, c.sa_nsamples, c.sa_mlps, c.global_mlp)
         self.cond = nn.Sequential(nn.Linear(PRIMITIVE_DIM, c.cond_dim), nn.ReLU(inplace=True))
-        in_dim = self.encoder.out_dim + c.cond_dim + (TCP_STATE_DIM if c.use_proprio else 0)
+        self.object_encoder = None
+        if c.object_mlp:
+            from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import PointNetEncoder
+
+            self.object_encoder = PointNetEncoder([int(w) for w in c.object_mlp])
+        in_dim = (self.encoder.out_dim + c.cond_dim + (TCP_STATE_DIM if c.use_proprio else 0)
+                  + (self.object_encoder.out_dim if self.object_encoder is not None else 0))  # fmt: skip
         na = len(ARMS)
         self.pos_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start xyz, end xyz, gripper start/end
         self.rot_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start quat, end quat
@@ -155,6 +161,25 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             return cloud[:, :n]
         reps = math.ceil(n / N)
         return cloud.repeat(1, reps, 1)[:, :n]
+
+    def _object_feature(self, frame: SceneFrame, obj: Tensor) -> Tensor:
+        """The object encoder's feature of the object cloud (B, K, 3) in the model frame: a max pool over
+        ``n_object_points`` of its seen points (all-zero rows are unseen; repeats fill a short cloud;
+        a cloud with none seen gives a zero feature)."""
+        n = self.config.n_object_points
+        seen = obj.abs().sum(-1) > 0  # (B, K)
+        # order: seen points first (random order in training, stored order at eval), then unseen ones
+        key = seen.float() * 2 + (torch.rand(seen.shape, device=obj.device) if self.training else 0.0)
+        order = key.argsort(dim=1, descending=True, stable=True)
+        n_seen = seen.sum(1, keepdim=True)  # (B, 1)
+        slot = torch.arange(n, device=obj.device)[None]  # (1, n): slot i takes seen point i mod n_seen
+        pick = torch.gather(order, 1, torch.remainder(slot, n_seen.clamp(min=1)).expand(obj.shape[0], -1))
+        pts = torch.gather(obj, 1, pick[..., None].expand(-1, -1, 3))
+        x = frame.pos_in(pts)
+        if self.training and self.config.augment and self.config.aug_jitter_std > 0:
+            x = x + self.config.aug_jitter_std * torch.randn_like(x)
+        f = self.object_encoder(x)
+        return torch.where(n_seen > 0, f, torch.zeros_like(f))
 
     def _center(self, batch: dict[str, Tensor], cloud: Tensor) -> Tensor:
         """(B, 3) origin of the model frame: the scene cloud's mean, or (``frame_center="object"``) the
@@ -209,6 +234,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         feats = [self.encoder(x), self.cond(self._conditioning(batch[OBS_PRIMITIVE].float()))]
         if self.config.use_proprio:
             feats.append(self._proprio_in(frame, batch[OBS_TCP_STATE].float()))
+        if self.object_encoder is not None:
+            feats.append(self._object_feature(frame, batch[OBS_OBJECT_CLOUD].float()))
         h = torch.cat(feats, 1)
         pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
         out = []
@@ -295,6 +322,9 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         """One inference pass (``j`` of ``k``) in world coordinates."""
         if j:
             batch = {**batch, OBS_POINTCLOUD: torch.roll(batch[OBS_POINTCLOUD], -j * self.config.n_points, dims=1)}
+            if self.object_encoder is not None:
+                obj = batch[OBS_OBJECT_CLOUD]
+                batch[OBS_OBJECT_CLOUD] = torch.roll(obj, -j * self.config.n_object_points, dims=1)
         frame, pred = self._run(batch, turn=2 * math.pi * j / k)
         out = []
         for p in pred:
