@@ -344,7 +344,8 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
 
 
 @pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
-                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6"), ("object_encoder", "full")])  # fmt: skip
+                                           ("ablation_A5", "A-5"), ("ablation_A6", "A-6"), ("object_encoder", "full"),
+                                           ("object_residual", "full")])  # fmt: skip
 def test_recipes_parse_into_the_config(name, ablation):
     import draccus
 
@@ -353,7 +354,7 @@ def test_recipes_parse_into_the_config(name, ablation):
     assert d["policy"]["type"] == "flatlab_executor"
     cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
     assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
-    assert cfg.object_mlp == pol.get("object_mlp", [])
+    assert cfg.object_mlp == pol.get("object_mlp", []) and cfg.pose_residual == pol.get("pose_residual", False)
     assert d["dataset"]["root"] and d["steps"] > 0
 
 
@@ -471,6 +472,46 @@ def test_object_encoder_reads_the_object_cloud_shape_in_the_model_frame():
     assert enc.object_encoder.net[0].weight.grad.abs().sum() > 0
     with pytest.raises(ValueError, match="object_mlp"):
         _policy(frame_center="scene", object_mlp=[16])
+
+
+def test_pose_residual_gate_adds_the_measured_tcp_pose():
+    """pose_residual: p = out + g * tcp, q = nlerp(q_abs, q_rel x q_tcp; g).  With the heads' outputs
+    zero / identity and the gate saturated at 1 the prediction is the arm's measured TCP pose in the
+    world (through the augmented frame and back); at 0 it is the absolute head; training trains the gate."""
+    pol = _policy(pose_residual=True)
+    with pytest.raises(ValueError, match="pose_residual"):
+        _policy(pose_residual=True, use_proprio=False)
+    b = _batch(B=4)
+    last_pos, last_rot, last_gate = pol.pos_head[-1], pol.rot_head[-1], pol.gate_head[-1]
+    with torch.no_grad():
+        for lin in (last_pos, last_rot, last_gate):
+            lin.weight.zero_()
+            lin.bias.zero_()
+        last_rot.bias.view(2, 4, 4)[:, :, 0] = 1.0  # every quaternion output = identity (w = 1)
+        last_gate.bias.fill_(30.0)
+    pol.eval()
+    out = pol.predict_world(b)
+    for i in range(2):
+        tcp = b[C.OBS_TCP_STATE][:, 8 * i : 8 * i + 8]
+        for end in ("start", "end"):
+            torch.testing.assert_close(out[i][f"{end}_pos"], tcp[:, :3], atol=1e-5, rtol=0)
+            dots = (out[i][f"{end}_quat"] * tcp[:, 3:7]).sum(-1).abs()
+            torch.testing.assert_close(dots, torch.ones(4), atol=1e-5, rtol=0)
+    pol.train()  # the same through a random scale / rotation of the training frame
+    frame, pred = pol._run(b)
+    tcp = b[C.OBS_TCP_STATE][:, 0:8]
+    torch.testing.assert_close(frame.pos_out(pred[0]["start_pos"]), tcp[:, :3], atol=1e-5, rtol=0)
+    with torch.no_grad():
+        last_gate.bias.fill_(-30.0)
+    pol.eval()
+    out = pol.predict_world(b)
+    centre = pol._center(b, pol._cloud(b[C.OBS_POINTCLOUD]))
+    torch.testing.assert_close(out[1]["end_pos"], centre, atol=1e-5, rtol=0)  # the absolute head: 0 = the frame origin
+    pol = _policy(pose_residual=True)
+    pol.train()
+    loss, _ = pol.forward(b)
+    loss.backward()
+    assert pol.gate_head[-1].weight.grad.abs().sum() > 0
 
 
 def test_object_frame_needs_the_object_cloud_feature():

@@ -140,7 +140,10 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                   + (self.object_encoder.out_dim if self.object_encoder is not None else 0))  # fmt: skip
         na = len(ARMS)
         self.pos_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start xyz, end xyz, gripper start/end
-        self.rot_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start quat, end quat
+        # per arm: start quat, end quat (+ with pose_residual: start / end quat relative to the TCP's)
+        self.rot_head = _mlp([in_dim, *c.head_hidden, na * (16 if c.pose_residual else 8)])
+        # pose_residual: per arm and pose (start, end), the gate that adds the arm's TCP pose
+        self.gate_head = _mlp([in_dim, c.head_hidden[-1], na * 2]) if c.pose_residual else None
         # which arms the primitive commands (A picks its pushing / grasping arm from where the object is)
         self.active_head = _mlp([in_dim, c.head_hidden[-1], na])
         self.reset()
@@ -217,12 +220,21 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             prim = torch.cat([prim[:, :NS], torch.zeros_like(prim[:, NS:])], 1)
         return prim
 
-    def _proprio_in(self, frame: SceneFrame, tcp: Tensor) -> Tensor:
+    def _proprio_in(self, frame: SceneFrame, tcp: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
+        """Per arm (TCP position, quaternion, finger opening) in the model frame."""
         parts = []
         for i in range(len(ARMS)):
             a = tcp[:, 8 * i : 8 * i + 8]
-            parts += [frame.pos_in(a[:, :3]), canonical(frame.quat_in(canonical(a[:, 3:7]))), a[:, 7:8]]
-        return torch.cat(parts, 1)
+            parts.append((frame.pos_in(a[:, :3]), canonical(frame.quat_in(canonical(a[:, 3:7]))), a[:, 7:8]))
+        return parts
+
+    @staticmethod
+    def _blend(q_abs: Tensor, q_rel: Tensor, q_tcp: Tensor, g: Tensor) -> Tensor:
+        """nlerp by ``g`` (B, 1) from the absolute quaternion to ``q_rel x q_tcp`` (sign-aligned first)."""
+        a = F.normalize(q_abs, dim=-1)
+        b = F.normalize(quat_mul(F.normalize(q_rel, dim=-1), q_tcp), dim=-1)
+        b = torch.where((a * b).sum(-1, keepdim=True) < 0, -b, b)
+        return canonical((1 - g) * a + g * b)
 
     def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None, turn: float = 0.0):
         """-> (frame, per-arm predictions in the model frame)."""
@@ -232,18 +244,29 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         if self.training and self.config.augment and self.config.aug_jitter_std > 0:
             x = x + self.config.aug_jitter_std * torch.randn_like(x)
         feats = [self.encoder(x), self.cond(self._conditioning(batch[OBS_PRIMITIVE].float()))]
+        tcp = None
         if self.config.use_proprio:
-            feats.append(self._proprio_in(frame, batch[OBS_TCP_STATE].float()))
+            tcp = self._proprio_in(frame, batch[OBS_TCP_STATE].float())
+            feats.append(torch.cat([t for arm in tcp for t in arm], 1))
         if self.object_encoder is not None:
             feats.append(self._object_feature(frame, batch[OBS_OBJECT_CLOUD].float()))
         h = torch.cat(feats, 1)
         pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
+        gate = torch.sigmoid(self.gate_head(h)) if self.gate_head is not None else None
+        nr = rot.shape[1] // len(ARMS)
         out = []
         for i in range(len(ARMS)):
-            p, r = pos[:, 8 * i : 8 * i + 8], rot[:, 8 * i : 8 * i + 8]
-            out.append({"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7],
-                        "gripper_end": p[:, 7:8], "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]),
-                        "active_logit": act[:, i]})  # fmt: skip
+            p, r = pos[:, 8 * i : 8 * i + 8], rot[:, nr * i : nr * i + nr]
+            arm = {"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7], "gripper_end": p[:, 7:8],
+                   "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]), "active_logit": act[:, i]}  # fmt: skip
+            if gate is not None:  # pose_residual: + g x the arm's TCP pose
+                t_pos, t_q, _ = tcp[i]
+                for j, end in enumerate(("start", "end")):
+                    g = gate[:, 2 * i + j : 2 * i + j + 1]
+                    arm[f"{end}_pos"] = arm[f"{end}_pos"] + g * t_pos
+                    arm[f"{end}_quat"] = self._blend(r[:, 4 * j : 4 * j + 4], r[:, 8 + 4 * j : 12 + 4 * j], t_q, g)
+                    arm[f"{end}_gate"] = g
+            out.append(arm)
         return frame, out
 
     # ---------------------------------------------------------------- training
