@@ -222,3 +222,22 @@ def test_checkpoint_policy_via_cli_with_resume(tmp_path):
     # the checkpoint's inputs must exist in the env: a camera the env does not render is refused
     with pytest.raises(SystemExit, match="observation.images.front"):
         main(["--policy", str(ckpt), "--objects", "ref_box", "--env.cameras=[top]", "--out", str(tmp_path / "x")])
+
+
+def test_summary_counts_what_became_of_each_desk_object():
+    """A scenario trial (clear_desk) records per object lifted / cleared and the policy's attempts;
+    the summary gives the means per desk beside G (= whole desks cleared)."""
+    from flatlab_lerobot.evaluation.protocol import summarize
+
+    base = {"object_id": "magazine_science", "split": "test_beta", "category": "Magazine", "label": "A",
+            "strategy": "A", "S": True}  # fmt: skip
+    recs = [
+        {**base, "trial": 0, "G": True, "desk": {"objects": list("abcde"), "lifted": [True] * 5, "cleared": [True] * 5,
+                                                  "attempts": ["A", "A", "B", "A", "B"]}},
+        {**base, "trial": 1, "G": False, "desk": {"objects": list("abcde"), "lifted": [True, True, False, False, False],
+                                                   "cleared": [True, False, False, False, False], "attempts": ["A"] * 7}},
+    ]  # fmt: skip
+    s = summarize(recs, {})
+    assert s["overall"]["G"] == 0.5
+    assert s["desk"] == {"trials": 2, "n_objects": 5, "cleared_mean": 3.0, "lifted_mean": 3.5, "attempts_mean": 6.0}
+    assert "desk" not in summarize([{**base, "trial": 0, "G": True}], {})

@@ -226,7 +226,7 @@ class Evaluator:
                 # the env's own outcome of the episode lerobot's eval_policy just ran (its loop, not
                 # flatlab_lerobot.rollout: a trial must be exactly a lerobot-eval episode)
                 reason = "" if success else env.failure_reason or st.shortfall.text()
-                yield {
+                record = {
                     "policy": self.spec["policy"],
                     "object_id": spec.id,
                     "trial": t,
@@ -246,8 +246,24 @@ class Evaluator:
                     "wall_s": round(time.perf_counter() - t0, 3),
                     "pid": os.getpid(),
                 }
+                if getattr(env, "layout", None) is not None:  # a scenario (clear_desk): what became of each object
+                    record["desk"] = desk_outcome(env, self.policy)
+                yield record
         finally:
             close_envs(envs)
+
+
+def desk_outcome(env, policy) -> dict:
+    """A scenario trial's objects (clearing order), which were lifted (the hold rule met) and cleared
+    (lifted and off the table), and the policy's attempts (strategy per attempt) when it reports them."""
+    from flatlab_lerobot.tasks.clear_desk import cleared
+
+    out = {"objects": env.layout.object_ids, "lifted": [bool(v) for v in env.sim.lifted],
+           "cleared": [bool(v) for v in cleared(env.sim)]}  # fmt: skip
+    attempts = getattr(policy, "attempts", None)
+    if attempts:
+        out["attempts"] = attempts[0]
+    return out
 
 
 @contextmanager
@@ -398,12 +414,22 @@ def summarize(records: list[dict], config: dict) -> dict:
             "S": _rate(recs, "S"),
             "G": _rate(recs, "G"),
         }
-    return {
+    out = {
         "config": config,
         "per_object": list(per_object.values()),
         "per_split": per_split,
         "overall": {"trials": len(records), "S": _rate(records, "S"), "G": _rate(records, "G")},
     }
+    desks = [r["desk"] for r in records if "desk" in r]
+    if desks:  # a scenario: objects lifted / cleared per trial (the trial's G is the whole desk)
+        out["desk"] = {
+            "trials": len(desks),
+            "n_objects": len(desks[0]["objects"]),
+            "cleared_mean": sum(sum(d["cleared"]) for d in desks) / len(desks),
+            "lifted_mean": sum(sum(d["lifted"]) for d in desks) / len(desks),
+            "attempts_mean": (sum(len(d["attempts"]) for d in desks) / len(desks)) if all("attempts" in d for d in desks) else None,
+        }
+    return out
 
 
 def _pct(v) -> str:

@@ -93,6 +93,13 @@ def desk(rec: dict) -> tuple[int, int]:
     return sum(k for k, _ in g), sum(n for _, n in g)
 
 
+def desk_objects(rec: dict) -> float | None:
+    """Mean objects cleared per desk (of 5), when the record has it."""
+    if "per_desk" in rec:
+        return rec.get("cleared_mean")
+    return (rec.get("desk") or {}).get("cleared_mean")
+
+
 def provenance(rec: dict | None) -> dict:
     """command, wall time (s), machine, device, commit of a record, whatever its format."""
     rec = rec or {}
@@ -364,17 +371,20 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
     lines = ["## The five-object desk (`clear_desk`)", "",
              "Five rigid Test-β objects of five categories in one cell, cleared one after another; success = all five "
              "lifted (2-s hold) and none left on the table.", "",
-             "| method | desks cleared | rate (%) | paper (%) | status | stage |", "|---|---|---|---|---|---|"]  # fmt: skip
+             "| method | desks cleared | rate (%) | paper (%) | objects cleared per desk (of 5) | status | stage |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
     for label, paper_key in (("oracle", None), ("FlatLab", "FlatLab"), ("GPT-4o", "GPT-4o + same executor")):
         name = rows.get(label)
         s = st.get(name) if name else None
         k_n = desk(s.record) if _has(s) else None
+        per = desk_objects(s.record) if _has(s) else None
         text = {"oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
                 "GPT-4o": "GPT-4o + the same executor"}[label]  # fmt: skip
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
-        lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | {state} | "
+        lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
+                     f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
     return [*lines, "", *_commands(ctx, st, list(rows.values()))]
 
