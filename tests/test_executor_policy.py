@@ -345,7 +345,7 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
 
 @pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
                                            ("ablation_A5", "A-5"), ("ablation_A6", "A-6"), ("object_encoder", "full"),
-                                           ("object_residual", "full")])  # fmt: skip
+                                           ("object_relative", "full")])  # fmt: skip
 def test_recipes_parse_into_the_config(name, ablation):
     import draccus
 
@@ -354,7 +354,7 @@ def test_recipes_parse_into_the_config(name, ablation):
     assert d["policy"]["type"] == "flatlab_executor"
     cfg = draccus.decode(C.FlatLabExecutorConfig, pol)
     assert cfg.ablation == ablation and cfg.n_points == pol["n_points"]
-    assert cfg.object_mlp == pol.get("object_mlp", []) and cfg.pose_residual == pol.get("pose_residual", False)
+    assert cfg.object_mlp == pol.get("object_mlp", []) and cfg.relative_starts == pol.get("relative_starts", False)
     assert d["dataset"]["root"] and d["steps"] > 0
 
 
@@ -474,44 +474,43 @@ def test_object_encoder_reads_the_object_cloud_shape_in_the_model_frame():
         _policy(frame_center="scene", object_mlp=[16])
 
 
-def test_pose_residual_gate_adds_the_measured_tcp_pose():
-    """pose_residual: p = out + g * tcp, q = nlerp(q_abs, q_rel x q_tcp; g).  With the heads' outputs
-    zero / identity and the gate saturated at 1 the prediction is the arm's measured TCP pose in the
-    world (through the augmented frame and back); at 0 it is the absolute head; training trains the gate."""
-    pol = _policy(pose_residual=True)
-    with pytest.raises(ValueError, match="pose_residual"):
-        _policy(pose_residual=True, use_proprio=False)
-    b = _batch(B=4)
-    last_pos, last_rot, last_gate = pol.pos_head[-1], pol.rot_head[-1], pol.gate_head[-1]
+def test_relative_starts_continue_from_the_measured_tcp():
+    """relative_starts: a stage that starts where the arm is (StageSpec.start == "current": B's squeeze)
+    is the TCP + d_start, then start + d_end (rotations composed on the TCP's); an approach (A's touch)
+    stays in the model frame.  With the heads' outputs zero / identity the squeeze is the arm's
+    measured TCP pose (through the augmented training frame and back) and the touch the frame origin."""
+    pol = _policy(relative_starts=True)
+    with pytest.raises(ValueError, match="relative_starts"):
+        _policy(relative_starts=True, use_proprio=False)
+    b = _batch(B=6)  # samples 1 and 4: B squeeze / lift (from the current pose); 0: A grasp; 3: A touch
+    rel = pol.relative_mask(b[C.OBS_PRIMITIVE])
+    assert rel.tolist() == [True, True, True, False, True, False]  # A grasp, B squeeze, C pinch, A touch, B lift, C touch
+    assert not _policy(relative_starts=True, decompose_primitives=False).relative_mask(b[C.OBS_PRIMITIVE]).any()
+    last_pos, last_rot = pol.pos_head[-1], pol.rot_head[-1]
     with torch.no_grad():
-        for lin in (last_pos, last_rot, last_gate):
+        for lin in (last_pos, last_rot):
             lin.weight.zero_()
             lin.bias.zero_()
-        last_rot.bias.view(2, 4, 4)[:, :, 0] = 1.0  # every quaternion output = identity (w = 1)
-        last_gate.bias.fill_(30.0)
-    pol.eval()
-    out = pol.predict_world(b)
-    for i in range(2):
-        tcp = b[C.OBS_TCP_STATE][:, 8 * i : 8 * i + 8]
-        for end in ("start", "end"):
-            torch.testing.assert_close(out[i][f"{end}_pos"], tcp[:, :3], atol=1e-5, rtol=0)
-            dots = (out[i][f"{end}_quat"] * tcp[:, 3:7]).sum(-1).abs()
-            torch.testing.assert_close(dots, torch.ones(4), atol=1e-5, rtol=0)
-    pol.train()  # the same through a random scale / rotation of the training frame
-    frame, pred = pol._run(b)
-    tcp = b[C.OBS_TCP_STATE][:, 0:8]
-    torch.testing.assert_close(frame.pos_out(pred[0]["start_pos"]), tcp[:, :3], atol=1e-5, rtol=0)
-    with torch.no_grad():
-        last_gate.bias.fill_(-30.0)
+        last_rot.bias.view(2, 2, 4)[:, :, 0] = 1.0  # every quaternion output = identity (w = 1)
     pol.eval()
     out = pol.predict_world(b)
     centre = pol._center(b, pol._cloud(b[C.OBS_POINTCLOUD]))
-    torch.testing.assert_close(out[1]["end_pos"], centre, atol=1e-5, rtol=0)  # the absolute head: 0 = the frame origin
-    pol = _policy(pose_residual=True)
+    for i in range(2):
+        tcp = b[C.OBS_TCP_STATE][:, 8 * i : 8 * i + 8]
+        for end in ("start", "end"):
+            torch.testing.assert_close(out[i][f"{end}_pos"][rel], tcp[rel, :3], atol=1e-5, rtol=0)
+            dots = (out[i][f"{end}_quat"][rel] * tcp[rel, 3:7]).sum(-1).abs()
+            torch.testing.assert_close(dots, torch.ones(int(rel.sum())), atol=1e-5, rtol=0)
+            torch.testing.assert_close(out[i][f"{end}_pos"][~rel], centre[~rel], atol=1e-5, rtol=0)
+    pol.train()  # the same through a random scale / rotation of the training frame
+    frame, pred = pol._run(b)
+    torch.testing.assert_close(frame.pos_out(pred[1]["end_pos"])[rel], b[C.OBS_TCP_STATE][rel, 8:11], atol=1e-5, rtol=0)
+    torch.testing.assert_close(frame.pos_out(pred[1]["end_pos"])[~rel], frame.c[~rel], atol=1e-5, rtol=0)
+    pol = _policy(relative_starts=True)
     pol.train()
     loss, _ = pol.forward(b)
     loss.backward()
-    assert pol.gate_head[-1].weight.grad.abs().sum() > 0
+    assert pol.pos_head[-1].weight.grad.abs().sum() > 0
 
 
 def test_object_frame_needs_the_object_cloud_feature():

@@ -98,10 +98,11 @@ def test_dry_run_plan_reports_earlier_runs_and_blocked_stages(capsys):
     assert re.search(r"strategy_cpu\s+metrics\s+earlier", out)
     assert re.search(r"eval_oracle\s+eval\s+earlier\s+\(earlier run: oracle.json\)", out)
     assert re.search(r"eval_pi0\s+eval\s+blocked\s+\(needs weights \(lerobot/pi0\)\)", out)
-    assert "$ lerobot-train --config_path=policies/flatlab_strategy/cpu.json" in out
-    # every baseline has a measured record now, so its training is planned only when asked for
-    assert paper_main(["--preset", "cpu", "--dry-run", "--no-render", "--only", "baseline_train_diffusion"]) == 0
+    # stages with a measured record are planned only when asked for (--force)
+    assert paper_main(["--preset", "cpu", "--dry-run", "--no-render", "--only", "baseline_train_diffusion",
+                       "strategy_train_lambda_0.1", "--force", "strategy_train_lambda_0.1"]) == 0  # fmt: skip
     out = capsys.readouterr().out
+    assert "$ lerobot-train --config_path=policies/flatlab_strategy/cpu.json" in out
     assert re.search(r"baseline_train_diffusion\s+train\s+run", out)
     assert "--dataset.episodes=$(flatlab collect --recipe datasets/baselines_cpu.yaml" in out
     with pytest.raises(P.PaperError, match="no such stage"):

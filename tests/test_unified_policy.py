@@ -353,6 +353,12 @@ def test_stage_specs_name_the_primitives_the_expert_poses():
                 prim = stage(None, w, poses, grip, ctx)
                 spec = STAGE_SPECS[strat][i]
                 assert prim.name == spec.primitive and prim.transit == spec.transit, (strat, i)
+                # StageSpec.start (the executor's relative_starts): "current" = every commanded arm starts at
+                # its current pose; "world" = a moving arm starts at a pose computed from the scene
+                at_current = [np.allclose(m.start[0], poses[a][0]) and np.allclose(m.start[1], poses[a][1])
+                              for a, m in prim.motions.items()]  # fmt: skip
+                assert spec.start in ("current", "world"), (strat, i)
+                assert all(at_current) if spec.start == "current" else not all(at_current), (strat, i, spec.start)
 
 
 # ------------------------------------------------------------------------------ through the CLIs

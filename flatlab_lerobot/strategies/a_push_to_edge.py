@@ -29,13 +29,13 @@ A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 
 
 # each stage's primitive and timing (duration of the Cartesian motion, transit to its start)
 S_TOUCH = StageSpec("touch", 0.6, transit=1.5)
-S_PRESS = StageSpec("press", 0.4)
-S_SLIDE = StageSpec("slide", 0.5, speed=0.08, along="xy")  # max(0.5 s, distance / 8 cm/s)
-S_RELEASE = StageSpec("release", 0.8)
+S_PRESS = StageSpec("press", 0.4, start="current")
+S_SLIDE = StageSpec("slide", 0.5, speed=0.08, along="xy", start="current")  # max(0.5 s, distance / 8 cm/s)
+S_RELEASE = StageSpec("release", 0.8, start="current")
 S_PREAPPROACH = StageSpec("move", 0.2, transit=2.0)
 S_APPROACH = StageSpec("touch", 1.2, transit=1.0)
-S_GRASP = StageSpec("grasp", 0.6)
-S_LIFT = StageSpec("lift", 1.6, speed=0.1, along="z")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
+S_GRASP = StageSpec("grasp", 0.6, start="current")
+S_LIFT = StageSpec("lift", 1.6, speed=0.1, along="z", start="current")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
 
 
 def _a_arm(world: World, ctx: dict) -> str:

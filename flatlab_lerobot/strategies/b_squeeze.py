@@ -13,8 +13,8 @@ B_OPEN = GRIPPER_MAX_WIDTH  # open fingers: two contact patches far apart resist
 B_SQUEEZE = 0.025  # how far each hand is commanded past the touched face (m)
 S_PREAPPROACH = StageSpec("move", 0.2, transit=2.0)
 S_TOUCH = StageSpec("touch", 1.0, transit=0.8)
-S_SQUEEZE = StageSpec("squeeze", 0.6)
-S_LIFT = StageSpec("lift", 1.6)
+S_SQUEEZE = StageSpec("squeeze", 0.6, start="current")
+S_LIFT = StageSpec("lift", 1.6, start="current")
 
 
 def _b_targets(w: World, inset: float, dz: float = 0.0):

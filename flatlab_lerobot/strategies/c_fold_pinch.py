@@ -22,13 +22,13 @@ C_LEFT_AWAY = 0.15  # after the squeeze the left hand backs off this far outward
 C_LEFT_OFF, C_LEFT_OFF_UP = 0.05, 0.02  # ... first this far outward and up (m), off the ridge's wall, ...
 C_LEFT_UP = 0.15  # ... then straight up to this height above the press (m), then outward
 S_TOUCH = StageSpec("touch", 0.8, transit=2.0)
-S_SQUEEZE = StageSpec("squeeze", 1.6)
-S_RELEASE = StageSpec("release", 0.6)
-S_LEFT_AWAY = StageSpec("move", 0.6)
-S_LEFT_OUT = StageSpec("move", 0.5)
+S_SQUEEZE = StageSpec("squeeze", 1.6, start="current")
+S_RELEASE = StageSpec("release", 0.6, start="current")
+S_LEFT_AWAY = StageSpec("move", 0.6, start="current")
+S_LEFT_OUT = StageSpec("move", 0.5, start="current")
 S_STRADDLE = StageSpec("press", 0.8, transit=1.5)
-S_PINCH = StageSpec("grasp", 0.8)
-S_LIFT = StageSpec("lift", 2.0, speed=0.16, along="z")  # 2 s per C_LIFT (32 cm) of rise, at least 2 s
+S_PINCH = StageSpec("grasp", 0.8, start="current")
+S_LIFT = StageSpec("lift", 2.0, speed=0.16, along="z", start="current")  # 2 s per C_LIFT (32 cm) of rise, at least 2 s
 
 
 def _c_pose(w: World, s: float, dist: float, dz: float):

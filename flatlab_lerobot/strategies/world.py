@@ -28,13 +28,17 @@ class StageSpec:
     (m/s), a motion whose length varies takes ``max(duration, length / speed)``, its length measured
     ``along`` "xy" (horizontal) or "z" (rise).  One table per strategy (``SPECS`` beside its
     ``STAGES``) serves the stage functions and the learned policy that executes predicted poses
-    under the expert's names and timing."""
+    under the expert's names and timing.  ``start``: "world" -- the stage's commanded arms start at a
+    pose the stage computes from the scene (an approach); "current" -- they start where they are (the
+    previous stage's commanded pose: press, slide, squeeze, grasp, lift, ...), so the stage is a motion
+    relative to the hand (a test checks this against the stage functions)."""
 
     primitive: str
     duration: float
     transit: float = 1.0
     speed: float | None = None
     along: str = "xy"
+    start: str = "world"
 
     def seconds(self, length: float = 0.0) -> float:
         """The Cartesian motion's duration for a motion ``length`` m long (s)."""
@@ -145,7 +149,7 @@ def hold_all(poses, grip, duration: float) -> Primitive:
     return Primitive("hold", {a: ArmMotion.still(poses[a], grip[a]) for a in ARMS}, duration)
 
 
-HOLD = StageSpec("hold", 2.6)  # the final hold of every strategy
+HOLD = StageSpec("hold", 2.6, start="current")  # the final hold of every strategy
 
 
 def hold(ex, w: World, poses, grip, ctx) -> Primitive:

@@ -115,13 +115,12 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     # its own cloud shows its outline and height directly.  [] (default, the paper's): scene cloud only
     object_mlp: list[int] = field(default_factory=list)
     n_object_points: int = 256  # object points fed to that encoder (random subset in training, the first n at eval)
-    # poses relative to where the arm is: each predicted start / end pose is the head's output plus a
-    # learned gate g in [0, 1] (per arm and pose, from F) times the arm's measured TCP pose (position:
-    # p = out + g * tcp; rotation: nlerp of the absolute quaternion and (relative one) x tcp by g).  Most
-    # primitives start where the previous one ended (press, slide, squeeze, grasp, lift: within 1 cm of
-    # the TCP), which a gate near 1 gives exactly; approach poses take g near 0 (object frame).  Needs
-    # use_proprio.  false (default, the paper's): absolute poses in the model frame
-    pose_residual: bool = False
+    # stages that start where the arm is (the expert's ``StageSpec.start == "current"``: press, slide,
+    # squeeze, grasp, lift, ...) are predicted relative to the arm's measured TCP: start = TCP + d_start,
+    # end = start + d_end (rotations: q_start = r_start x q_tcp, q_end = r_end x q_start); stages that
+    # start at a pose computed from the scene (touch, approach, pre-approach) stay in the model frame.
+    # Only with decompose_primitives (the stage is known).  false (default, the paper's): every pose absolute
+    relative_starts: bool = False
     # loss
     lambda_pos: float = 10.0  # paper App. D: P-MSE minimal for lambda_pos 5-10 with lambda_rot 1
     lambda_rot: float = 1.0
@@ -155,8 +154,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
         if self.object_mlp and self.frame_center not in OBJECT_FRAMES:
             bad("object_mlp", f"an object encoder needs frame_center in {OBJECT_FRAMES} (the object cloud input), "
                 f"got {self.frame_center!r}")
-        if self.pose_residual and not self.use_proprio:
-            bad("pose_residual", "poses relative to the TCP need the TCP: set use_proprio=true")
+        if self.relative_starts and not self.use_proprio:
+            bad("relative_starts", "poses relative to the TCP need the TCP: set use_proprio=true")
         if self.n_object_points < 1:
             bad("n_object_points", f"must be >= 1, got {self.n_object_points}")
         if self.n_points < 16:

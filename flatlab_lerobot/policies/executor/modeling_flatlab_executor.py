@@ -37,6 +37,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     encode_primitive,
 )
 from flatlab_lerobot.policies.executor.pointnet2 import PointNet2Encoder
+from flatlab_lerobot.strategies.registry import STAGE_SPECS
 
 NS = len(STRATEGY_NAMES)
 
@@ -140,10 +141,13 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
                   + (self.object_encoder.out_dim if self.object_encoder is not None else 0))  # fmt: skip
         na = len(ARMS)
         self.pos_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start xyz, end xyz, gripper start/end
-        # per arm: start quat, end quat (+ with pose_residual: start / end quat relative to the TCP's)
-        self.rot_head = _mlp([in_dim, *c.head_hidden, na * (16 if c.pose_residual else 8)])
-        # pose_residual: per arm and pose (start, end), the gate that adds the arm's TCP pose
-        self.gate_head = _mlp([in_dim, c.head_hidden[-1], na * 2]) if c.pose_residual else None
+        self.rot_head = _mlp([in_dim, *c.head_hidden, na * 8])  # per arm: start quat, end quat
+        # relative_starts: per (strategy, stage) whether the stage starts where the arm is (StageSpec.start)
+        from_current = torch.zeros(NS, MAX_STAGES, dtype=torch.bool)
+        for i, s in enumerate(STRATEGY_NAMES):
+            for k, spec in enumerate(STAGE_SPECS[s]):
+                from_current[i, k] = spec.start == "current"
+        self.register_buffer("from_current", from_current, persistent=False)
         # which arms the primitive commands (A picks its pushing / grasping arm from where the object is)
         self.active_head = _mlp([in_dim, c.head_hidden[-1], na])
         self.reset()
@@ -228,13 +232,12 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             parts.append((frame.pos_in(a[:, :3]), canonical(frame.quat_in(canonical(a[:, 3:7]))), a[:, 7:8]))
         return parts
 
-    @staticmethod
-    def _blend(q_abs: Tensor, q_rel: Tensor, q_tcp: Tensor, g: Tensor) -> Tensor:
-        """nlerp by ``g`` (B, 1) from the absolute quaternion to ``q_rel x q_tcp`` (sign-aligned first)."""
-        a = F.normalize(q_abs, dim=-1)
-        b = F.normalize(quat_mul(F.normalize(q_rel, dim=-1), q_tcp), dim=-1)
-        b = torch.where((a * b).sum(-1, keepdim=True) < 0, -b, b)
-        return canonical((1 - g) * a + g * b)
+    def relative_mask(self, prim: Tensor) -> Tensor:
+        """(B,) bool: with ``relative_starts``, the sample's stage starts where the arm is (its poses are
+        predicted relative to the TCP); all False otherwise."""
+        if not (self.config.relative_starts and self.config.decompose_primitives):
+            return torch.zeros(prim.shape[0], dtype=torch.bool, device=prim.device)
+        return self.from_current[prim[:, :NS].argmax(1), prim[:, NS : NS + MAX_STAGES].argmax(1)]
 
     def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None, turn: float = 0.0):
         """-> (frame, per-arm predictions in the model frame)."""
@@ -252,20 +255,21 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             feats.append(self._object_feature(frame, batch[OBS_OBJECT_CLOUD].float()))
         h = torch.cat(feats, 1)
         pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
-        gate = torch.sigmoid(self.gate_head(h)) if self.gate_head is not None else None
-        nr = rot.shape[1] // len(ARMS)
+        rel = self.relative_mask(batch[OBS_PRIMITIVE].float())[:, None]  # (B, 1)
         out = []
         for i in range(len(ARMS)):
-            p, r = pos[:, 8 * i : 8 * i + 8], rot[:, nr * i : nr * i + nr]
+            p, r = pos[:, 8 * i : 8 * i + 8], rot[:, 8 * i : 8 * i + 8]
             arm = {"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7], "gripper_end": p[:, 7:8],
                    "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]), "active_logit": act[:, i]}  # fmt: skip
-            if gate is not None:  # pose_residual: + g x the arm's TCP pose
+            if bool(rel.any()):  # stages that start where the arm is: TCP + d_start, then start + d_end
                 t_pos, t_q, _ = tcp[i]
-                for j, end in enumerate(("start", "end")):
-                    g = gate[:, 2 * i + j : 2 * i + j + 1]
-                    arm[f"{end}_pos"] = arm[f"{end}_pos"] + g * t_pos
-                    arm[f"{end}_quat"] = self._blend(r[:, 4 * j : 4 * j + 4], r[:, 8 + 4 * j : 12 + 4 * j], t_q, g)
-                    arm[f"{end}_gate"] = g
+                s_pos = t_pos + p[:, 0:3]
+                s_q = canonical(quat_mul(F.normalize(r[:, 0:4], dim=-1), t_q))
+                e_q = canonical(quat_mul(F.normalize(r[:, 4:8], dim=-1), s_q))
+                arm["start_pos"] = torch.where(rel, s_pos, arm["start_pos"])
+                arm["end_pos"] = torch.where(rel, s_pos + p[:, 3:6], arm["end_pos"])
+                arm["start_quat"] = torch.where(rel, s_q, arm["start_quat"])
+                arm["end_quat"] = torch.where(rel, e_q, arm["end_quat"])
             out.append(arm)
         return frame, out
 
