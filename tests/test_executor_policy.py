@@ -346,7 +346,7 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
 @pytest.mark.parametrize("name,ablation", [("cpu", "full"), ("paper", "full"), ("ablation_A4", "A-4"),
                                            ("ablation_A5", "A-5"), ("ablation_A6", "A-6"), ("object_encoder", "full"),
                                            ("object_relative", "full"),
-                                           ("object_relative_cosine", "full")])  # fmt: skip
+                                           ("object_encoder_cosine", "full")])  # fmt: skip
 def test_recipes_parse_into_the_config(name, ablation):
     import draccus
 
