@@ -78,6 +78,21 @@ def _batch(B=6, seed=0):
             OBS_ENV: torch.as_tensor(g.normal(size=(B, 14)), dtype=torch.float32)}  # fmt: skip
 
 
+def _translated(b: dict, shift: torch.Tensor) -> dict:
+    """The batch with the whole scene moved by ``shift``: scene cloud, the object cloud's seen rows
+    (unseen ones stay zero) and both arms' TCP positions."""
+    out = dict(b)
+    out[C.OBS_POINTCLOUD] = b[C.OBS_POINTCLOUD] + shift
+    obj = b[C.OBS_OBJECT_CLOUD].clone()
+    obj[obj.abs().sum(-1) > 0] += shift
+    out[C.OBS_OBJECT_CLOUD] = obj
+    tcp = b[C.OBS_TCP_STATE].clone()
+    for i in range(2):
+        tcp[:, 8 * i : 8 * i + 3] += shift
+    out[C.OBS_TCP_STATE] = tcp
+    return out
+
+
 # ------------------------------------------------------------------------------ loss and geometry
 def test_geodesic_loss_is_zero_for_q_and_minus_q_and_the_angle_otherwise():
     q = _rand_quat(np.random.default_rng(1), 64)
@@ -374,16 +389,7 @@ def test_object_frame_centres_on_the_seen_object_points():
     torch.testing.assert_close(c[0], obj[0, :20].mean(0))
     torch.testing.assert_close(c[1], pol._cloud(b[C.OBS_POINTCLOUD])[1].mean(0))
     shift = torch.tensor([0.05, -0.03, 0.0])
-    b2 = dict(b)
-    b2[C.OBS_POINTCLOUD] = b[C.OBS_POINTCLOUD] + shift
-    o2 = obj.clone()
-    o2[0, :20] += shift
-    b2[C.OBS_OBJECT_CLOUD] = o2
-    tcp = b[C.OBS_TCP_STATE].clone()
-    for i in range(2):
-        tcp[:, 8 * i : 8 * i + 3] += shift
-    b2[C.OBS_TCP_STATE] = tcp
-    p1, p2 = pol.predict_world(b)[0], pol.predict_world(b2)[0]
+    p1, p2 = pol.predict_world(b)[0], pol.predict_world(_translated(b, shift))[0]
     torch.testing.assert_close(p2["start_pos"][0], p1["start_pos"][0] + shift, atol=1e-4, rtol=0)
     with pytest.raises(ValueError, match="object_cloud"):
         pol.predict_poses(b[C.OBS_POINTCLOUD][0], "A", 0, "touch", b[C.OBS_TCP_STATE][0])
@@ -409,16 +415,7 @@ def test_object_table_frame_sits_on_the_table_under_the_object():
     torch.testing.assert_close(c[:, :2], obj[:, :20, :2].mean(1))
     torch.testing.assert_close(c[:, 2], torch.full((2,), 0.75))
     shift = torch.tensor([0.02, 0.01, -0.1])
-    b2 = dict(b)
-    b2[C.OBS_POINTCLOUD] = cloud + shift
-    o2 = obj.clone()
-    o2[:, :20] += shift
-    b2[C.OBS_OBJECT_CLOUD] = o2
-    tcp = b[C.OBS_TCP_STATE].clone()
-    for i in range(2):
-        tcp[:, 8 * i : 8 * i + 3] += shift
-    b2[C.OBS_TCP_STATE] = tcp
-    p1, p2 = pol.predict_world(b)[1], pol.predict_world(b2)[1]
+    p1, p2 = pol.predict_world(b)[1], pol.predict_world(_translated(b, shift))[1]
     torch.testing.assert_close(p2["end_pos"], p1["end_pos"] + shift, atol=1e-4, rtol=0)
     with pytest.raises(ValueError, match="object_cloud"):
         pol.predict_poses(cloud[0], "B", 2, "squeeze", b[C.OBS_TCP_STATE][0])
@@ -451,14 +448,8 @@ def test_object_encoder_reads_the_object_cloud_shape_in_the_model_frame():
     same = lambda pol: torch.allclose(pol.predict_world(b)[0]["start_pos"], pol.predict_world(bt)[0]["start_pos"])  # noqa: E731
     assert same(plain) and not same(enc)
     shift = torch.tensor([0.03, -0.02, 0.0])
-    tcp = b[C.OBS_TCP_STATE].clone()
-    for i in range(2):
-        tcp[:, 8 * i : 8 * i + 3] += shift
-    o2 = obj.clone()
-    o2[:, :20] += shift
-    b2 = {**b, C.OBS_POINTCLOUD: cloud + shift, C.OBS_OBJECT_CLOUD: o2, C.OBS_TCP_STATE: tcp}
-    torch.testing.assert_close(enc.predict_world(b2)[1]["end_pos"], enc.predict_world(b)[1]["end_pos"] + shift,
-                               atol=1e-4, rtol=0)  # fmt: skip
+    torch.testing.assert_close(enc.predict_world(_translated(b, shift))[1]["end_pos"],
+                               enc.predict_world(b)[1]["end_pos"] + shift, atol=1e-4, rtol=0)  # fmt: skip
     frame = enc._frame(cloud, enc._center(b, enc._cloud(cloud)))
     interleaved = torch.zeros(2, 32, 3)  # the same 20 seen points (all fit in 24 slots) between unseen rows
     interleaved[:, 1::2][:, :16] = obj[:, :16]

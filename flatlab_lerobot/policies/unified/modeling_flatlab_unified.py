@@ -155,17 +155,13 @@ class _Episode:
         n_stages = len(STRATEGIES[self.strategy])
         while True:
             if self.after is not None:
-                step = next(self.after, None)
-                if step is not None:
-                    self.stage, self.last = step
+                if self._emit(self.after):
                     return self.last
                 self.after = None
                 self._restart()
                 return self.act(obs)
             if self.actions is not None:
-                step = next(self.actions, None)
-                if step is not None:
-                    self.stage, self.last = step
+                if self._emit(self.actions):
                     return self.last
                 self.actions = None
                 self.q, self.grip = self.expert.runner.q.copy(), dict(self.expert.runner.grip)
@@ -179,6 +175,14 @@ class _Episode:
             if self._skip_pass(obs):
                 continue
             self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip)
+
+    def _emit(self, steps) -> bool:
+        """Take the next (stage, action) of ``steps`` as the last action; False when it is exhausted."""
+        step = next(steps, None)
+        if step is None:
+            return False
+        self.stage, self.last = step
+        return True
 
     # -------------------------------------------------------------- several objects (clear_all)
     @staticmethod
