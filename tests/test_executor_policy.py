@@ -374,6 +374,19 @@ def test_recipes_parse_into_the_config(name, ablation):
     assert d["dataset"]["root"] and d["steps"] > 0
 
 
+def test_ablation_recipes_are_the_cpu_recipe_but_their_switches():
+    """Table 2's A-4 / A-5 / A-6 compare against the cpu recipe: same data, steps, optimizer and model,
+    only rotation_loss / decompose_primitives differ."""
+    root = Path(__file__).resolve().parents[1] / "policies/flatlab_executor"
+    cpu = json.loads((root / "cpu.json").read_text())
+    for name, switches in (("ablation_A4", {"rotation_loss"}), ("ablation_A5", {"decompose_primitives"}),
+                           ("ablation_A6", {"rotation_loss", "decompose_primitives"})):  # fmt: skip
+        d = json.loads((root / f"{name}.json").read_text())
+        assert {k: v for k, v in d.items() if k != "policy"} == {k: v for k, v in cpu.items() if k != "policy"}, name
+        differ = {k for k in set(d["policy"]) | set(cpu["policy"]) if d["policy"].get(k) != cpu["policy"].get(k)}
+        assert differ == switches, (name, differ)
+
+
 def test_object_frame_centres_on_the_seen_object_points():
     """frame_center="object": the model frame's origin is the mean of the object cloud's seen
     (non-zero) points, the scene mean when none is seen; a translation of the whole scene (clouds,
