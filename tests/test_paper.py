@@ -69,8 +69,9 @@ def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
 
 
 def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
-    res = tmp_path / "results"  # the measured records, less eval_slide's: a user of unified_cpu without a record
-    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns("plots", "eval_slide.json"))
+    # the measured records, less eval_slide's and eval_desk_flatlab's: users of unified_cpu without a record
+    res = tmp_path / "results"
+    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns("plots", "eval_slide.json", "eval_desk_flatlab.json"))
     ctx = ctx_for("cpu", tmp_path, res)
     st = P.statuses(ctx)
     assert st["eval_pi0"].state == "blocked" and "needs weights" in st["eval_pi0"].reason
