@@ -31,7 +31,7 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None =
 
     from flatlab_lerobot.learning.primitive_export import TASK_RE
     from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
-        ARMS, GRASP_STAGE, MAX_STAGES, OBS_PRIMITIVE, PRIMITIVE_NAMES, STRATEGY_NAMES, arm_slices,
+        ARMS, GRASP_STAGE, OBS_PRIMITIVE, PRIMITIVE_NAMES, STRATEGY_NAMES, arm_slices, decode_primitive,
     )  # fmt: skip
     from flatlab_lerobot.policies.executor.modeling_flatlab_executor import geodesic_angle
 
@@ -40,13 +40,10 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None =
     acc: dict = defaultdict(lambda: defaultdict(list))
     act_acc: dict = defaultdict(list)  # per split: predicted "arm commanded" flag == the expert's
     policy.eval()
-    ns = len(STRATEGY_NAMES)
     for batch in loader:
         pred = policy.predict_world(batch, tta)
         prim = batch[OBS_PRIMITIVE]
-        strat = prim[:, :ns].argmax(1).tolist()
-        stage = prim[:, ns : ns + MAX_STAGES].argmax(1).tolist()
-        name = prim[:, ns + MAX_STAGES :].argmax(1).tolist()
+        strat, stage, name = (x.tolist() for x in decode_primitive(prim))
         splits = [TASK_RE.match(t)["split"] for t in batch["task"]]
         tgt = batch["action"].float()
         for i, p in enumerate(pred):

@@ -86,6 +86,13 @@ def encode_primitive(strategy: str, stage_index: int, primitive: str) -> list[fl
     return v
 
 
+def decode_primitive(prim):
+    """The inverse of ``encode_primitive`` for a batch of ``observation.primitive`` rows (B, PRIMITIVE_DIM),
+    tensor or array: the (strategy, stage index, primitive name) indices, each (B,)."""
+    ns = len(STRATEGY_NAMES)
+    return prim[:, :ns].argmax(1), prim[:, ns : ns + MAX_STAGES].argmax(1), prim[:, ns + MAX_STAGES :].argmax(1)
+
+
 @PreTrainedConfig.register_subclass("flatlab_executor")
 @dataclass
 class FlatLabExecutorConfig(PreTrainedConfig):

@@ -34,6 +34,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     FlatLabExecutorConfig,
     arm_slices,
     check_training_tasks,
+    decode_primitive,
     encode_primitive,
 )
 from flatlab_lerobot.policies.executor.pointnet2 import PointNet2Encoder
@@ -237,7 +238,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         predicted relative to the TCP); all False otherwise."""
         if not (self.config.relative_starts and self.config.decompose_primitives):
             return torch.zeros(prim.shape[0], dtype=torch.bool, device=prim.device)
-        return self.from_current[prim[:, :NS].argmax(1), prim[:, NS : NS + MAX_STAGES].argmax(1)]
+        strat, stage, _ = decode_primitive(prim)
+        return self.from_current[strat, stage]
 
     def _run(self, batch: dict[str, Tensor], frame: SceneFrame | None = None, turn: float = 0.0):
         """-> (frame, per-arm predictions in the model frame)."""
@@ -256,12 +258,13 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         h = torch.cat(feats, 1)
         pos, rot, act = self.pos_head(h), self.rot_head(h), self.active_head(h)
         rel = self.relative_mask(batch[OBS_PRIMITIVE].float())[:, None]  # (B, 1)
+        any_rel = bool(rel.any())
         out = []
         for i in range(len(ARMS)):
             p, r = pos[:, 8 * i : 8 * i + 8], rot[:, 8 * i : 8 * i + 8]
             arm = {"start_pos": p[:, 0:3], "end_pos": p[:, 3:6], "gripper_start": p[:, 6:7], "gripper_end": p[:, 7:8],
                    "start_quat": canonical(r[:, 0:4]), "end_quat": canonical(r[:, 4:8]), "active_logit": act[:, i]}  # fmt: skip
-            if bool(rel.any()):  # stages that start where the arm is: TCP + d_start, then start + d_end
+            if any_rel:  # stages that start where the arm is: TCP + d_start, then start + d_end
                 t_pos, t_q, _ = tcp[i]
                 s_pos = t_pos + p[:, 0:3]
                 s_q = canonical(quat_mul(F.normalize(r[:, 0:4], dim=-1), t_q))
@@ -276,8 +279,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
     # ---------------------------------------------------------------- training
     def grasp_mask(self, prim: Tensor) -> Tensor:
         """(B,) bool: the sample is its strategy's grasp primitive (a_grasp, b_squeeze, c_pinch)."""
-        strat = prim[:, :NS].argmax(1)
-        stage = prim[:, NS : NS + MAX_STAGES].argmax(1)
+        strat, stage, _ = decode_primitive(prim)
         grasp = prim.new_tensor([GRASP_STAGE[s] for s in STRATEGY_NAMES]).long()
         return stage == grasp[strat]
 
