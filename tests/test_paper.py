@@ -86,9 +86,12 @@ def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
     assert st["eval_slide"].state == "blocked" and st["eval_slide"].reason.startswith("unified_cpu:")
     monkeypatch.setattr(P, "_CUDA", [False])
     paper = P.statuses(ctx_for("paper"))
-    assert paper["strategy_train_paper"].state == "blocked" and paper["strategy_train_paper"].reason == "needs GPU"
-    assert paper["strategy_paper"].reason == "strategy_train_paper: needs GPU"
-    assert paper["strategy_set"].state == "missing"  # learning sets need no GPU
+    a1 = paper["strategy_train_ablation_A1"]
+    assert a1.state == "blocked" and a1.reason == "needs GPU"
+    assert paper["strategy_ablation_A1"].reason == "strategy_train_ablation_A1: needs GPU"
+    assert paper["strategy_export_scene"].state == "missing"  # learning sets need no GPU
+    # a training recorded on a GPU machine (scripts/device_paper.sh) is done here, and so are its users' inputs
+    assert paper["strategy_train_paper"].state == "done" and paper["strategy_paper"].state == "done"
     with pytest.raises(P.PaperError, match="unknown need"):
         P.unmet("tpu")
 
@@ -150,16 +153,17 @@ def test_readme_headline_is_the_rendered_one():
     assert m[1] == R.headline(ctx_for("cpu")), "README headline is stale: flatlab paper --headline"
 
 
-def test_results_page_is_the_rendered_one():
-    """docs/results.md holds exactly the tables --render-only makes from docs/results/ (plots aside)."""
-    ctx = ctx_for("cpu")
+@pytest.mark.parametrize("preset,page", [("cpu", "results.md"), ("paper", "results_paper.md")])
+def test_results_page_is_the_rendered_one(preset, page):
+    """docs/results.md (docs/results_paper.md) holds exactly the tables --render-only makes from docs/results/ (plots aside)."""
+    ctx = ctx_for(preset)
 
     def strip(text):  # without plot links / notes, blank lines collapsed
         text = re.sub(r"^(!\[[^\]]*\]\([^)]*\)|Plot: not drawn.*)$", "", text, flags=re.M)
         return re.sub(r"\n{2,}", "\n\n", text)
 
     body = strip(R.tables(ctx, P.statuses(ctx), None, REPO / "docs"))
-    assert body in strip((REPO / "docs" / "results.md").read_text()), "docs/results.md is stale: flatlab paper --render-only"
+    assert body in strip((REPO / "docs" / page).read_text()), f"docs/{page} is stale: flatlab paper --preset {preset} --render-only"
 
 
 # ----------------------------------------------------------------------------- the tiny preset end to end
@@ -207,3 +211,11 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     for key in ("per_split", "per_category", "per_object", "selection"):
         assert after[key] == before[key], key
     assert R.tables(P.context("tiny", out, res)) == first
+
+
+def test_git_commit_of_a_tree_copy_comes_from_the_environment(monkeypatch):
+    """scripts/device_paper.sh runs stages in a copy of the tree whose .git may be stale: FLATLAB_GIT_COMMIT wins."""
+    monkeypatch.setenv("FLATLAB_GIT_COMMIT", "0123abc")
+    assert P.git_commit() == {"commit": "0123abc", "dirty": False, "from": "FLATLAB_GIT_COMMIT"}
+    monkeypatch.delenv("FLATLAB_GIT_COMMIT")
+    assert P.git_commit()["commit"] != "0123abc"

@@ -4,6 +4,7 @@
     flatlab paper --preset cpu                    # run what is missing, render docs/results.md
     flatlab paper --preset cpu --only 'strategy_lambda_*'
     flatlab paper --render-only                   # docs/results.md + plots from docs/results/*.json
+    flatlab paper --preset paper --render-only    # docs/results_paper.md (its trainings ran on a lent GPU)
     flatlab paper --headline                      # the README's headline table
 """
 
@@ -53,7 +54,8 @@ def main(argv_=None) -> int:
     ap.add_argument("--results-dir", type=Path, default=None, help="results JSONs (default docs/results)")
     ap.add_argument("--out", type=Path, default=None, help="stage outputs (default outputs/paper/<preset>)")
     ap.add_argument("--page", type=Path, default=None,
-                    help="page to write (default docs/results.md for --results-dir docs/results, else <results-dir>/results.md)")  # fmt: skip
+                    help="page to write (default docs/results.md for --results-dir docs/results, docs/results_<preset>.md for "
+                         "another preset than cpu, else <results-dir>/results.md)")  # fmt: skip
     a = ap.parse_args(argv_)
     ctx = context(a.preset, a.out, a.results_dir)
     if a.headline:

@@ -400,10 +400,9 @@ def git_commit() -> dict:
         r = subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True)
         return r.stdout.strip() if r.returncode == 0 else None
 
-    commit = git("rev-parse", "HEAD")
-    if commit is None and os.environ.get("FLATLAB_GIT_COMMIT"):  # a copy of the tree without .git (a lent GPU machine)
+    if os.environ.get("FLATLAB_GIT_COMMIT"):  # a copy of the tree whose .git is absent or stale (a lent GPU machine)
         return {"commit": os.environ["FLATLAB_GIT_COMMIT"], "dirty": False, "from": "FLATLAB_GIT_COMMIT"}
-    return {"commit": commit, "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+    return {"commit": git("rev-parse", "HEAD"), "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
 
 
 def _seeds(cmd: list[str]) -> dict:
