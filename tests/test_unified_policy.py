@@ -148,9 +148,11 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     assert a.stage_indices[0] >= 1  # the actions covered more than one predicted stage
 
 
-def test_actions_never_depend_on_environment_state(tiny):
-    """Three instances see each observation with the privileged state as is, zeroed, and absent."""
-    pols = [_load(tiny["artifact"]) for _ in range(3)]
+@pytest.mark.parametrize("overrides", [{}, {"strategy": "A", "contact": "observed"}])
+def test_actions_never_depend_on_environment_state(tiny, overrides):
+    """Three instances see each observation with the privileged state as is, zeroed, and absent (also
+    with the contact heights and A's slide length from the observed clouds, observed_contact.py)."""
+    pols = [_load(tiny["artifact"], **overrides) for _ in range(3)]
 
     def zeroed(obs):
         b = _batch(obs)
@@ -164,6 +166,9 @@ def test_actions_never_depend_on_environment_state(tiny):
     np.testing.assert_array_equal(acts[0], acts[1])
     np.testing.assert_array_equal(acts[0], acts[2])
     assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
+    if overrides:  # the touch's heights were set from the object cloud
+        posed = [d for d in pols[0].decisions[0] if "heights" in d]
+        assert posed and all(h["observed"][1] is not None for h in posed[0]["heights"].values())
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

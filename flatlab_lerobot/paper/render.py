@@ -25,12 +25,14 @@ SPLIT_NAMES = {"train": "Train", "test_alpha": "Test-α", "test_beta": "Test-β"
 T1_ROWS = [  # (our row label, the paper's Table 1 row)
     ("Slide", "Slide"), ("Lift", "Lift"), ("ACT", None), ("Diffusion Policy", "Diffusion Policy"),
     ("3D Diffusion Policy", "3D Diffusion Policy"), ("OpenVLA", "OpenVLA"), ("pi0", "pi0"), ("pi0.5", "pi0.5"),
-    ("FlatLab", "FlatLab"), ("Slide (scripted)", "Slide"), ("Lift (scripted)", "Lift"), ("oracle", None),
+    ("FlatLab", "FlatLab"), ("FlatLab, observed contact", None), ("Slide (scripted)", "Slide"),
+    ("Lift (scripted)", "Lift"), ("oracle", None),
 ]  # fmt: skip
 ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripted)": "Slide, scripted (expert, always A)",
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
-            "ACT": "ACT (not in the paper)"}  # fmt: skip
+            "ACT": "ACT (not in the paper)",
+            "FlatLab, observed contact": "FlatLab, contact heights + A's slide length from the cloud (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor

@@ -49,6 +49,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
     FlatLabExecutorConfig,
 )
 from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
+from flatlab_lerobot.policies.unified.observed_contact import CONTACT_CHOICES
 from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES
 
 STRATEGY_CHOICES = ("learned", "A", "B", "C")
@@ -85,12 +86,19 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # shows now (the next object, or the same one after a failed attempt), while it lies on the table
     clear_all: bool = False
     settle_s: float = 1.0
+    # learned: every pose as the executor predicts it (the paper's method); observed: the heights of the
+    # stages that touch the object (A's press passes and side grasp, B's squeeze) and the length of A's
+    # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
+    # paper; observed_contact.py)
+    contact: str = "learned"
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
         super().__post_init__()
         if self.strategy not in STRATEGY_CHOICES:
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
+        if self.contact not in CONTACT_CHOICES:
+            raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         if not 0 <= int(self.executor_tta) <= 64:
             raise ValueError(f"--policy.executor_tta: must be in [0, 64] (0: the executor's own), got {self.executor_tta}")
         if not 1 <= int(self.max_push_passes) <= A_PASSES:

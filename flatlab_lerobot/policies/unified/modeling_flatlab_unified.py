@@ -51,6 +51,7 @@ from flatlab_lerobot.policies import fps_indices
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
+from flatlab_lerobot.policies.unified.observed_contact import apply_heights, cap_slide, contact_heights, slide_cap
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
@@ -246,15 +247,27 @@ class _Episode:
         thr = self.policy.config.active_threshold
         prob = {a: float(poses[a]["active"][0]) for a in ARMS}
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
-        motions, duration = {}, 0.0
+        motions, duration, heights = {}, 0.0, {}
+        observed = self.policy.config.contact == "observed"
         for a in arms:
             (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
+            p0, p1 = p0[0].astype(float), p1[0].astype(float)
+            if observed:  # the contact stages' heights and A's slide length from the clouds (observed_contact.py)
+                pts = obs.object_points
+                xy = p1[:2] if spec.primitive == "touch" else p0[:2]
+                z = contact_heights(self.strategy, self.index, spec.primitive, pts, xy, obs.table_top, obs.edge_x)
+                heights[a] = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}
+                p0, p1 = apply_heights(p0, p1, *z)
+                if self.strategy == "A" and spec.primitive == "slide":
+                    cap = slide_cap(pts, obs.edge_x)
+                    heights[a]["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
+                    p1 = cap_slide(p0, p1, cap)
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
-            motions[a] = ArmMotion((p0[0].astype(float), _rotmat(q0[0])), (p1[0].astype(float), _rotmat(q1[0])), (g0, g1))
-            duration = max(duration, spec.for_motion(p0[0], p1[0]))
+            motions[a] = ArmMotion((p0, _rotmat(q0[0])), (p1, _rotmat(q1[0])), (g0, g1))
+            duration = max(duration, spec.for_motion(p0, p1))
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration})  # fmt: skip
+                         "duration": duration, **({"heights": heights} if observed else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
     def _proprio(self, obs: Observed) -> np.ndarray:

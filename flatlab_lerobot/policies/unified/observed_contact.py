@@ -1,0 +1,126 @@
+"""``--policy.contact=observed``: the heights of the stages that touch the object, and the length of A's
+slide, come from the observed clouds by the expert's own rules; every x, y, orientation, gripper width,
+arm choice and strategy stays learned.  Not in the paper: a measured answer to "how much of the gap is
+the executor's upward height bias" (1-1.5 cm on Train frames too, docs/executor.md), which keeps strategy
+A's press above 5-mm discs and B's squeeze above thin boards.
+
+What is read: the seen object points (``observation.object_pointcloud``), the table top and the usable
+edge from the calibration (``observation.cell``) -- never ``environment_state``.  The expert's rules, with
+the observed quantities in place of the privileged ones:
+
+* A, push passes (touch, press, slide, release): the fingertips at the object's top (the 95th percentile
+  of the cloud's z within 4 cm of the contact point, else of the whole cloud) + 2 mm at the touch's end,
+  - 1 mm while pressing and sliding (``a_push_to_edge``: ``A_PRESS_DEPTH``); the touch starts 6 cm above.
+* A, the side grasp (approach, grasp, lift's start): the overhang's mid height (the points past the
+  table edge: half-way between their lowest and highest), which is the expert's ``_a_pinch_height`` for
+  a rigid object and close to it for a drooping sheet.
+* B (touch, squeeze, lift's start): ``table + max(1.4 cm, thickness - 4 cm)`` (``b_squeeze._b_targets``),
+  the thickness being the cloud's top above the table.
+* A's slide: at most the expert's ``slide_distance`` for the overhang still missing, measured on the
+  cloud at the slide's start (its largest x and extent along x against the usable edge, the rule that
+  already decides another push pass): once the press holds the object, a learned slide that ran longer
+  pushed it off the table.
+* C and the other stages: learned.
+
+Where a stage sets only its start height (release, lift) the learned displacement is kept.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flatlab_lerobot.strategies.a_push_to_edge import (
+    A_PASSES,
+    A_PRESS_DEPTH,
+    PASS_STAGES,
+    overhang_missing,
+    slide_distance,
+)
+from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
+
+CONTACT_CHOICES = ("learned", "observed")
+TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
+TOP_RADIUS = 0.04  # m: the top under the contact point, from the points this close in x, y
+MIN_POINTS = 10  # fewer seen points than this: the learned height stays
+A_TOUCH_ABOVE = 0.06  # the expert's touch starts this far above its press pose (a_touch)
+B_MIN_HEIGHT, B_BELOW_TOP = 0.014, 0.04  # b_squeeze._b_targets: table + max(1.4 cm, thickness - 4 cm)
+
+
+def object_top(points: np.ndarray, xy: np.ndarray | None = None) -> float | None:
+    """The object's top (m) under ``xy`` (within TOP_RADIUS), or of the whole cloud; None if unseen."""
+    if len(points) < MIN_POINTS:
+        return None
+    if xy is not None:
+        near = points[np.linalg.norm(points[:, :2] - np.asarray(xy, float)[:2], axis=1) < TOP_RADIUS]
+        if len(near) >= MIN_POINTS:
+            points = near
+    return float(np.percentile(points[:, 2], TOP_QUANTILE))
+
+
+def overhang_mid(points: np.ndarray, edge_x: float) -> float | None:
+    """Mid height (m) of the seen points past the table edge; None when fewer than MIN_POINTS overhang."""
+    over = points[points[:, 0] > edge_x]
+    if len(over) < MIN_POINTS:
+        return None
+    return float(0.5 * (over[:, 2].min() + over[:, 2].max()))
+
+
+def _a(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
+    if index < A_PASSES * PASS_STAGES:  # a push pass
+        top = object_top(points, xy)
+        if top is None:
+            return None, None
+        touch, press = top + FINGER_TIP_BELOW_TCP + 0.002, top + FINGER_TIP_BELOW_TCP - A_PRESS_DEPTH
+        return {"touch": (press + A_TOUCH_ABOVE, touch), "press": (touch, press), "slide": (press, press),
+                "release": (press, None)}[primitive]  # fmt: skip
+    pinch = overhang_mid(points, edge_x)
+    if pinch is None or primitive not in ("touch", "grasp", "lift"):  # the approach is A's 'touch' stage
+        return None, None
+    return (pinch, None) if primitive == "lift" else (pinch, pinch)
+
+
+def _b(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
+    top = object_top(points)
+    if top is None or primitive not in ("touch", "squeeze", "lift"):
+        return None, None
+    z = table + max(B_MIN_HEIGHT, top - table - B_BELOW_TOP)
+    return (z, None) if primitive == "lift" else (z, z)
+
+
+RULES = {"A": _a, "B": _b}  # strategy -> (index, primitive, points, contact xy, table top, edge x) -> (z start, z end)
+
+
+def contact_heights(strategy: str, index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
+    """(z of the start, z of the end) for one commanded arm's motion of this stage; None: keep the learned."""
+    rule = RULES.get(strategy)
+    return (None, None) if rule is None else rule(index, primitive, points, xy, table, edge_x)
+
+
+def apply_heights(p0: np.ndarray, p1: np.ndarray, z0: float | None, z1: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The motion with its heights set; a missing one keeps the learned displacement from the other."""
+    p0, p1 = np.array(p0, float), np.array(p1, float)
+    if z0 is not None and z1 is not None:
+        p0[2], p1[2] = z0, z1
+    elif z0 is not None:
+        p1[2] += z0 - p0[2]
+        p0[2] = z0
+    elif z1 is not None:
+        p0[2] += z1 - p1[2]
+        p1[2] = z1
+    return p0, p1
+
+
+def slide_cap(points: np.ndarray, edge_x: float) -> float | None:
+    """The longest slide along +x (m) the expert's rule allows for the object as seen; None if unseen."""
+    if len(points) < MIN_POINTS:
+        return None
+    max_x, length_x = float(points[:, 0].max()), float(np.ptp(points[:, 0]))
+    return slide_distance(overhang_missing(max_x, length_x, edge_x), length_x)
+
+
+def cap_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
+    """The slide's end moved back along its own direction so that its x advance is at most ``cap``."""
+    dx = float(p1[0] - p0[0])
+    if cap is None or dx <= cap or dx <= 0:
+        return p1
+    return p0 + (p1 - p0) * (max(cap, 0.0) / dx)

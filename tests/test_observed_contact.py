@@ -1,0 +1,102 @@
+"""``--policy.contact=observed`` (observed_contact.py): the expert's height and slide rules evaluated on
+the observed cloud, checked against the expert's own poses for the same object."""
+
+import numpy as np
+import pytest
+
+from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatLabUnifiedConfig
+from flatlab_lerobot.policies.unified.observed_contact import (
+    apply_heights,
+    cap_slide,
+    contact_heights,
+    object_top,
+    overhang_mid,
+    slide_cap,
+)
+from flatlab_lerobot.strategies.a_push_to_edge import a_press, a_slide, a_touch, slide_distance
+from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
+
+TABLE, EDGE = 0.75, 0.30
+
+
+def _box_cloud(centre, size, n=2000, seed=0):
+    """What cameras see of an axis-aligned box resting on the table: its top face (80 % of the points)
+    and its sides."""
+    rng = np.random.default_rng(seed)
+    lo = np.r_[centre[0] - size[0] / 2, centre[1] - size[1] / 2, TABLE]
+    pts = lo + rng.random((n, 3)) * np.asarray(size)
+    pts[: int(0.8 * n), 2] = TABLE + size[2]
+    return pts
+
+
+def test_object_top_is_local_when_the_contact_point_has_points():
+    thin, thick = _box_cloud((0.0, -0.1), (0.1, 0.1, 0.005)), _box_cloud((0.0, 0.1), (0.1, 0.1, 0.05), seed=1)
+    pts = np.r_[thin, thick]
+    assert object_top(pts, (0.0, -0.1)) == pytest.approx(TABLE + 0.005, abs=5e-4)  # the thin part under the finger
+    assert object_top(pts) == pytest.approx(TABLE + 0.05)  # no contact point: the whole cloud
+    assert object_top(pts, (1.0, 1.0)) == object_top(pts)  # nothing near: the whole cloud
+    assert object_top(pts[:5]) is None  # too few points seen
+
+
+def test_a_push_heights_are_the_experts_for_the_seen_top():
+    from flatlab_lerobot.strategies import World
+
+    pts = _box_cloud((0.0, 0.0), (0.12, 0.12, 0.004))
+    top = object_top(pts, (0.0, 0.0))
+    touch = contact_heights("A", 0, "touch", pts, (0.0, 0.0), TABLE, EDGE)
+    press = contact_heights("A", 1, "press", pts, (0.0, 0.0), TABLE, EDGE)
+    slide = contact_heights("A", 2, "slide", pts, (0.0, 0.0), TABLE, EDGE)
+    # the expert's own primitives for an object with that top
+    w = World(pos=np.r_[0.0, 0.0, TABLE + 0.002], yaw=0.0, size=np.r_[0.12, 0.12, top - TABLE], deformable=False,
+              table_height=TABLE, edge_x=EDGE)  # fmt: skip
+    ctx: dict = {}
+    t = a_touch(None, w, {}, {}, ctx).motions[ctx["arm"]]
+    assert touch == pytest.approx((t.start[0][2], t.end[0][2]))
+    poses = {ctx["arm"]: t.end}
+    p = a_press(None, w, poses, {}, ctx).motions[ctx["arm"]]
+    assert press == pytest.approx((p.start[0][2], p.end[0][2]))
+    sl = a_slide(None, w, {ctx["arm"]: p.end}, {}, ctx).motions[ctx["arm"]]
+    assert slide == pytest.approx((sl.start[0][2], sl.end[0][2]))
+    assert touch[1] == pytest.approx(top + FINGER_TIP_BELOW_TCP + 0.002)
+
+
+def test_a_grasp_at_the_overhang_mid_height_and_b_squeeze_rule():
+    board = _box_cloud((EDGE, 0.0), (0.2, 0.2, 0.01))  # half of it past the edge
+    assert overhang_mid(board, EDGE) == pytest.approx(TABLE + 0.005, abs=5e-4)
+    assert contact_heights("A", 13, "touch", board, None, TABLE, EDGE)[0] == pytest.approx(TABLE + 0.005, abs=5e-4)
+    assert contact_heights("A", 15, "lift", board, None, TABLE, EDGE)[1] is None  # the learned lift stays
+    assert overhang_mid(_box_cloud((0.0, 0.0), (0.2, 0.2, 0.01)), EDGE) is None  # nothing overhangs yet
+    thin, thick = _box_cloud((0, 0), (0.3, 0.2, 0.015)), _box_cloud((0, 0), (0.3, 0.2, 0.08))
+    assert contact_heights("B", 2, "squeeze", thin, None, TABLE, EDGE)[0] == pytest.approx(TABLE + 0.014)
+    assert contact_heights("B", 2, "squeeze", thick, None, TABLE, EDGE)[0] == pytest.approx(TABLE + 0.04)
+    assert contact_heights("C", 5, "press", thin, None, TABLE, EDGE) == (None, None)  # C: learned
+
+
+def test_apply_heights_keeps_the_learned_displacement_where_one_end_is_free():
+    p0, p1 = np.r_[0.0, 0.0, 0.80], np.r_[0.05, 0.0, 0.95]
+    a, b = apply_heights(p0, p1, 0.76, None)
+    assert a[2] == pytest.approx(0.76) and b[2] == pytest.approx(0.91) and b[0] == 0.05
+    a, b = apply_heights(p0, p1, 0.76, 0.77)
+    assert (a[2], b[2]) == (0.76, 0.77)
+    a, b = apply_heights(p0, p1, None, None)
+    np.testing.assert_array_equal(a, p0)
+    np.testing.assert_array_equal(b, p1)
+
+
+def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
+    disc = _box_cloud((0.15, 0.0), (0.12, 0.12, 0.002))
+    cap = slide_cap(disc, EDGE)
+    max_x, length = disc[:, 0].max(), np.ptp(disc[:, 0])
+    from flatlab_lerobot.strategies.a_push_to_edge import overhang_missing
+
+    assert cap == pytest.approx(slide_distance(overhang_missing(max_x, length, EDGE), length))
+    p0 = np.r_[0.1, 0.0, 0.76]
+    long = cap_slide(p0, p0 + np.r_[0.3, 0.03, 0.0], cap)
+    assert long[0] - p0[0] == pytest.approx(cap) and long[1] - p0[1] == pytest.approx(0.03 * cap / 0.3)
+    short = p0 + np.r_[0.5 * cap, 0, 0]
+    np.testing.assert_array_equal(cap_slide(p0, short, cap), short)  # a shorter learned slide stays
+
+
+def test_contact_switch_is_validated():
+    with pytest.raises(ValueError, match="--policy.contact"):
+        FlatLabUnifiedConfig(contact="expert")
