@@ -375,13 +375,14 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
              "lifted (2-s hold) and none left on the table.", "",
              "| method | desks cleared | rate (%) | paper (%) | objects cleared per desk (of 5) | status | stage |",
              "|---|---|---|---|---|---|---|"]  # fmt: skip
-    for label, paper_key in (("oracle", None), ("FlatLab", "FlatLab"), ("GPT-4o", "GPT-4o + same executor")):
+    for label, paper_key in (("oracle", None), ("FlatLab", "FlatLab"), ("FlatLab, observed contact", None),
+                             ("GPT-4o", "GPT-4o + same executor")):  # fmt: skip
         name = rows.get(label)
         s = st.get(name) if name else None
         k_n = desk(s.record) if _has(s) else None
         per = desk_objects(s.record) if _has(s) else None
         text = {"oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
-                "GPT-4o": "GPT-4o + the same executor"}[label]  # fmt: skip
+                "GPT-4o": "GPT-4o + the same executor"}.get(label) or ROW_TEXT[label]  # fmt: skip
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
