@@ -51,7 +51,13 @@ from flatlab_lerobot.policies import fps_indices
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
-from flatlab_lerobot.policies.unified.observed_contact import apply_heights, cap_slide, contact_heights, slide_cap
+from flatlab_lerobot.policies.unified.observed_contact import (
+    apply_heights,
+    cap_slide,
+    contact_heights,
+    object_footprint_x,
+    slide_cap,
+)
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
@@ -108,15 +114,6 @@ def _rotmat(q) -> np.ndarray:
     R = np.zeros(9)
     mujoco.mju_quat2Mat(R, q)
     return R.reshape(3, 3)
-
-
-def object_footprint_x(object_cloud: np.ndarray) -> tuple[float, float] | None:
-    """(largest x, extent along x) of the seen object points (all-zero rows are unseen); None if none."""
-    pts = np.asarray(object_cloud, float).reshape(-1, 3)
-    pts = pts[np.abs(pts).sum(1) > 0]
-    if not len(pts):
-        return None
-    return float(pts[:, 0].max()), float(pts[:, 0].max() - pts[:, 0].min())
 
 
 class _Episode:
@@ -249,11 +246,11 @@ class _Episode:
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
         motions, duration, heights = {}, 0.0, {}
         observed = self.policy.config.contact == "observed"
+        pts = obs.object_points if observed else None
         for a in arms:
             (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
             p0, p1 = p0[0].astype(float), p1[0].astype(float)
             if observed:  # the contact stages' heights and A's slide length from the clouds (observed_contact.py)
-                pts = obs.object_points
                 xy = p1[:2] if spec.primitive == "touch" else p0[:2]
                 z = contact_heights(self.strategy, self.index, spec.primitive, pts, xy, obs.table_top, obs.edge_x)
                 heights[a] = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}

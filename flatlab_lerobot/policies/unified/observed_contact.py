@@ -110,11 +110,21 @@ def apply_heights(p0: np.ndarray, p1: np.ndarray, z0: float | None, z1: float | 
     return p0, p1
 
 
+def object_footprint_x(object_cloud: np.ndarray) -> tuple[float, float] | None:
+    """(largest x, extent along x) of the seen object points (all-zero rows are unseen); None if none.
+    What the expert's push-pass rules read from the privileged footprint."""
+    pts = np.asarray(object_cloud, float).reshape(-1, 3)
+    pts = pts[np.abs(pts).sum(1) > 0]
+    if not len(pts):
+        return None
+    return float(pts[:, 0].max()), float(pts[:, 0].max() - pts[:, 0].min())
+
+
 def slide_cap(points: np.ndarray, edge_x: float) -> float | None:
     """The longest slide along +x (m) the expert's rule allows for the object as seen; None if unseen."""
     if len(points) < MIN_POINTS:
         return None
-    max_x, length_x = float(points[:, 0].max()), float(np.ptp(points[:, 0]))
+    max_x, length_x = object_footprint_x(points)
     return slide_distance(overhang_missing(max_x, length_x, edge_x), length_x)
 
 
