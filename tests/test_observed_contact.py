@@ -12,6 +12,9 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_top,
     overhang_mid,
     slide_cap,
+    squeeze_end,
+    apply_xy,
+    c_pinch_xy,
 )
 from flatlab_lerobot.strategies.a_push_to_edge import a_press, a_slide, a_touch, slide_distance
 from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
@@ -69,7 +72,39 @@ def test_a_grasp_at_the_overhang_mid_height_and_b_squeeze_rule():
     thin, thick = _box_cloud((0, 0), (0.3, 0.2, 0.015)), _box_cloud((0, 0), (0.3, 0.2, 0.08))
     assert contact_heights("B", 2, "squeeze", thin, None, TABLE, EDGE)[0] == pytest.approx(TABLE + 0.014)
     assert contact_heights("B", 2, "squeeze", thick, None, TABLE, EDGE)[0] == pytest.approx(TABLE + 0.04)
-    assert contact_heights("C", 5, "press", thin, None, TABLE, EDGE) == (None, None)  # C: learned
+    assert contact_heights("C", 2, "release", thin, None, TABLE, EDGE) == (None, None)  # C's release: learned
+    assert contact_heights("C", 5, "press", thin, None, TABLE, EDGE, pinching=False) == (None, None)  # the other hand
+
+
+def test_c_heights_are_the_experts_and_the_squeeze_stops_short_of_the_seen_centre():
+    from flatlab_lerobot.strategies import World
+    from flatlab_lerobot.strategies.c_fold_pinch import C_END_HALF_GAP, c_lift, c_squeeze, c_straddle, c_touch
+
+    w = World(pos=np.r_[0.02, 0.01, TABLE + 0.002], yaw=0.0, size=np.r_[0.3, 0.25, 0.004], deformable=True,
+              table_height=TABLE, edge_x=EDGE)  # fmt: skip
+    sheet = _box_cloud((0.02, 0.01), (0.3, 0.25, 0.004))
+    rule = {prim: contact_heights("C", i, prim, sheet, None, TABLE, EDGE) for i, prim in
+            enumerate(("touch", "squeeze", "release", "move", "move", "press", "grasp", "lift"))}  # fmt: skip
+    touch = c_touch(None, w, {}, {}, {})
+    for a in ("left", "right"):
+        m = touch.motions[a]
+        assert rule["touch"] == pytest.approx((m.start[0][2], m.end[0][2]))
+        sq = c_squeeze(None, w, {a: m.end for a, m in touch.motions.items()}, {}, {}).motions[a]
+        assert rule["squeeze"] == pytest.approx((sq.start[0][2], sq.end[0][2]))
+        # a learned squeeze in the same direction that stops 6 cm short ends where the expert's does
+        d = sq.end[0] - sq.start[0]
+        short = sq.start[0] + d * (1 - 0.06 / np.linalg.norm(d[:2]))
+        end = squeeze_end(sq.start[0], short, sheet)
+        assert end[:2] == pytest.approx(sq.end[0][:2], abs=2e-3)
+        assert abs(float(np.linalg.norm(end[:2] - sheet[:, :2].mean(0)))) == pytest.approx(C_END_HALF_GAP, abs=2e-3)
+    st = c_straddle(None, w, {"left": touch.motions["left"].end}, {}, {}).motions["right"]
+    assert rule["press"] == pytest.approx((st.start[0][2], st.end[0][2]))
+    assert rule["grasp"] == (st.end[0][2], st.end[0][2])
+    lift = c_lift(None, w, {"right": st.end}, {}, {}).motions["right"]
+    assert rule["lift"] == (pytest.approx(lift.start[0][2]), None)
+    p0 = np.r_[0.0, 0.1, 0.76]
+    np.testing.assert_array_equal(squeeze_end(p0, p0, sheet), p0)  # no motion: nothing to stretch
+    np.testing.assert_array_equal(squeeze_end(p0, p0 + 0.05, sheet[:3]), p0 + 0.05)  # unseen cloth: learned
 
 
 def test_apply_heights_keeps_the_learned_displacement_where_one_end_is_free():
@@ -100,3 +135,18 @@ def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
+
+
+def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():
+    sheet = _box_cloud((0.02, 0.03), (0.2, 0.1, 0.03))  # a squeezed sheet with its fold
+    centre = c_pinch_xy("press", sheet, (0.5, 0.5))
+    assert centre == pytest.approx(sheet[:, :2].mean(0)) and centre == pytest.approx((0.02, 0.03), abs=4e-3)
+    assert c_pinch_xy("grasp", sheet, (0.01, 0.02)) == pytest.approx((0.01, 0.02))  # where the hand is
+    assert c_pinch_xy("lift", sheet, (0.01, 0.02)) == pytest.approx((0.01, 0.02))
+    assert c_pinch_xy("squeeze", sheet, (0.01, 0.02)) is None and c_pinch_xy("press", sheet[:3], None) is None
+    p0, p1 = np.r_[0.0, -0.01, 0.82], np.r_[0.003, -0.006, 0.76]  # a straddle: down, a few mm sideways
+    a, b = apply_xy(p0, p1, centre)
+    assert a[:2] == pytest.approx(centre) and b[:2] - a[:2] == pytest.approx(p1[:2] - p0[:2])
+    assert (a[2], b[2]) == (0.82, 0.76)
+    a, b = apply_xy(p0, p1, None)
+    np.testing.assert_array_equal(b, p1)

@@ -148,10 +148,13 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     assert a.stage_indices[0] >= 1  # the actions covered more than one predicted stage
 
 
-@pytest.mark.parametrize("overrides", [{}, {"strategy": "A", "contact": "observed"}])
+@pytest.mark.parametrize(
+    "overrides", [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "C", "contact": "observed"}]
+)
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
-    with the contact heights and A's slide length from the observed clouds, observed_contact.py)."""
+    with the contact heights, A's slide length and C's squeeze and pinch from the observed clouds and
+    the calibration, observed_contact.py)."""
     pols = [_load(tiny["artifact"], **overrides) for _ in range(3)]
 
     def zeroed(obs):
@@ -162,13 +165,19 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
     def absent(obs):
         return {k: v for k, v in _batch(obs).items() if k != OBS_ENV_STATE}
 
-    acts = _rollout(pols, steps=30, batch_fns=[_batch, zeroed, absent])
+    c = overrides.get("strategy") == "C"
+    acts = _rollout(pols, steps=140 if c else 30, batch_fns=[_batch, zeroed, absent])  # C: up to its pinch
     np.testing.assert_array_equal(acts[0], acts[1])
     np.testing.assert_array_equal(acts[0], acts[2])
     assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
     if overrides:  # the touch's heights were set from the object cloud
         posed = [d for d in pols[0].decisions[0] if "heights" in d]
         assert posed and all(h["observed"][1] is not None for h in posed[0]["heights"].values())
+    if c:  # the squeeze was stretched to the seen centre, the pinching hand came down at the table
+        assert any("squeeze" in h for d in posed for h in d["heights"].values())
+        press = [d for d in posed if d["primitive"] == "press"]
+        assert press, [d.get("primitive") for d in pols[0].decisions[0]]
+        assert any(h["observed"][1] is not None for h in press[0]["heights"].values())
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

@@ -32,7 +32,7 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
-            "FlatLab, observed contact": "FlatLab, contact heights + A's slide length from the cloud (not in the paper)"}  # fmt: skip
+            "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor

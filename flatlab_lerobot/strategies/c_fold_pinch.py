@@ -31,6 +31,21 @@ S_PINCH = StageSpec("grasp", 0.8, start="current")
 S_LIFT = StageSpec("lift", 2.0, speed=0.16, along="z", start="current")  # 2 s per C_LIFT (32 cm) of rise, at least 2 s
 
 
+C_TOUCH_ABOVE = 0.05  # the pressing hands come down from this far above the press (m)
+C_STRADDLE_ABOVE = 0.06  # the pinching hand comes down from this far above its pinch (m)
+
+
+def press_tcp_z(table_height: float) -> float:
+    """TCP height (m) of a pressing hand (leaning C_TILT, tips C_PRESS_TIP_Z above the table)."""
+    th = np.radians(C_TILT)
+    return table_height + C_PRESS_TIP_Z + C_TILT_LIFT * np.sin(th) + FINGER_TIP_BELOW_TCP * np.cos(th)
+
+
+def pinch_tcp_z(table_height: float) -> float:
+    """TCP height (m) of the upright pinching hand, its tips C_PRESS_TIP_Z above the table."""
+    return table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
+
+
 def _c_pose(w: World, s: float, dist: float, dz: float):
     """Pressing pose of the hand on side ``s`` (+1 left, -1 right) of the sheet centre, ``dist`` out
     along the squeeze axis, fingers across it, leaning C_TILT outward, tips ``dz`` above the press."""
@@ -48,7 +63,7 @@ def c_touch(ex, w: World, poses, grip, ctx) -> Primitive:
     d = C_START_FRAC * 2 * half
     sides = (("left", 1), ("right", -1))
     return S_TOUCH.make(
-        {a: ArmMotion(_c_pose(w, s, d, 0.05), _c_pose(w, s, d, 0.0), (C_PRESS_OPEN,) * 2) for a, s in sides}
+        {a: ArmMotion(_c_pose(w, s, d, C_TOUCH_ABOVE), _c_pose(w, s, d, 0.0), (C_PRESS_OPEN,) * 2) for a, s in sides}
     )
 
 
@@ -100,8 +115,8 @@ def c_straddle(ex, w: World, poses, grip, ctx) -> Primitive:
     u, _ = w.squeeze_axis()
     centre = w.pos
     R = tcp_rotation(DOWN, u)
-    z = w.table_height + C_PRESS_TIP_Z + FINGER_TIP_BELOW_TCP
-    start = (vec(centre[0], centre[1], z + 0.06), R)
+    z = pinch_tcp_z(w.table_height)
+    start = (vec(centre[0], centre[1], z + C_STRADDLE_ABOVE), R)
     end = (vec(centre[0], centre[1], z), R)
     left = ArmMotion.still(poses["left"], C_PRESS_OPEN)
     return S_STRADDLE.make({"right": ArmMotion(start, end, (C_PINCH_OPEN, C_PINCH_OPEN)), "left": left})

@@ -20,7 +20,19 @@ the observed quantities in place of the privileged ones:
   cloud at the slide's start (its largest x and extent along x against the usable edge, the rule that
   already decides another push pass): once the press holds the object, a learned slide that ran longer
   pushed it off the table.
-* C and the other stages: learned.
+* C (touch, squeeze; the pinching hand's press, grasp and lift's start -- the pinching hand being the
+  commanded arm whose learned gripper closes most): the expert's heights, which
+  depend on the table top only (``c_fold_pinch``: the leaning pressing hands' tips 1 mm above the table,
+  the upright pinching hand's likewise; the touch and the straddle come down from 5 and 6 cm above).
+* C's squeeze: its end moved along its own direction to stop ``C_END_HALF_GAP`` (2.5 cm) short of the
+  seen cloth's centre (the mean of its cloud), as the expert's hands stop short of the sheet's centre:
+  the learned squeezes stopped 5-8 cm short and raised no fold (towel, cotton sheet; seen in the stage
+  log, the cloth's top stayed 3 mm above the table).
+* C's pinch (the pinching hand's press, grasp, lift): at the seen cloth's centre, as the expert straddles
+  the fold at the sheet's current centre (its press at the centre of the cloud seen then; grasp and lift
+  from where the hand is): the learned straddle stood 2.7-3.5 cm beside a raised fold across the
+  fingers' closing direction (``shorts_denim``, a Train object; the stage log) and closed beside it.
+* The other stages: learned.
 
 Where a stage sets only its start height (release, lift) the learned displacement is kept.
 """
@@ -35,6 +47,13 @@ from flatlab_lerobot.strategies.a_push_to_edge import (
     PASS_STAGES,
     overhang_missing,
     slide_distance,
+)
+from flatlab_lerobot.strategies.c_fold_pinch import (
+    C_END_HALF_GAP,
+    C_STRADDLE_ABOVE,
+    C_TOUCH_ABOVE,
+    pinch_tcp_z,
+    press_tcp_z,
 )
 from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
 
@@ -87,13 +106,26 @@ def _b(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x:
     return (z, None) if primitive == "lift" else (z, z)
 
 
-RULES = {"A": _a, "B": _b}  # strategy -> (index, primitive, points, contact xy, table top, edge x) -> (z start, z end)
+def _c(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
+    press, pinch = press_tcp_z(table), pinch_tcp_z(table)
+    return {"touch": (press + C_TOUCH_ABOVE, press), "squeeze": (press, press), "press": (pinch + C_STRADDLE_ABOVE, pinch),
+            "grasp": (pinch, pinch), "lift": (pinch, None)}.get(primitive, (None, None))  # fmt: skip
 
 
-def contact_heights(strategy: str, index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
-    """(z of the start, z of the end) for one commanded arm's motion of this stage; None: keep the learned."""
+RULES = {"A": _a, "B": _b, "C": _c}  # strategy -> (index, primitive, points, contact xy, table top, edge x) -> (z start, z end)
+
+
+C_PINCH_STAGES = ("press", "grasp", "lift")  # C's stages of the pinching hand (the other one stays out of the way)
+
+
+def contact_heights(strategy: str, index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float,
+                    pinching: bool = True):  # fmt: skip
+    """(z of the start, z of the end) for one commanded arm's motion of this stage; None: keep the learned.
+    ``pinching``: in C's pinch stages, whether this arm is the pinching one (the other keeps its learned heights)."""
     rule = RULES.get(strategy)
-    return (None, None) if rule is None else rule(index, primitive, points, xy, table, edge_x)
+    if rule is None or (strategy == "C" and primitive in C_PINCH_STAGES and not pinching):
+        return None, None
+    return rule(index, primitive, points, xy, table, edge_x)
 
 
 def apply_heights(p0: np.ndarray, p1: np.ndarray, z0: float | None, z1: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -134,3 +166,37 @@ def cap_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
     if cap is None or dx <= cap or dx <= 0:
         return p1
     return p0 + (p1 - p0) * (max(cap, 0.0) / dx)
+
+
+def squeeze_end(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """C's squeeze end moved along the squeeze's own horizontal direction to stop C_END_HALF_GAP short of
+    the seen cloth's centre (never behind its start); unchanged when the cloth is unseen or it does not move."""
+    d = np.asarray(p1[:2], float) - np.asarray(p0[:2], float)
+    if len(points) < MIN_POINTS or np.linalg.norm(d) < 1e-6:
+        return p1
+    d /= np.linalg.norm(d)
+    reach = max(float((points[:, :2].mean(0) - np.asarray(p0[:2], float)) @ d) - C_END_HALF_GAP, 0.0)
+    end = np.array(p1, float)
+    end[:2] = np.asarray(p0[:2], float) + reach * d
+    return end
+
+
+def c_pinch_xy(primitive: str, points: np.ndarray, hand_xy) -> np.ndarray | None:
+    """Where (x, y) C's pinching hand works in ``primitive``: its press (the straddle) at the seen cloth's
+    centre, its grasp and lift where the hand is (``hand_xy``); None: keep the learned (other stages, or
+    too few points seen)."""
+    if primitive == "press":
+        return None if len(points) < MIN_POINTS else points[:, :2].mean(0)
+    if primitive in ("grasp", "lift"):
+        return np.asarray(hand_xy, float)[:2]
+    return None
+
+
+def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray]:
+    """The motion shifted so that it starts at ``xy`` (its learned horizontal displacement kept); None: unchanged."""
+    p0, p1 = np.array(p0, float), np.array(p1, float)
+    if xy is not None:
+        shift = np.asarray(xy, float)[:2] - p0[:2]
+        p0[:2] += shift
+        p1[:2] += shift
+    return p0, p1
