@@ -255,7 +255,7 @@ class _Episode:
         for a in arms:
             (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
             p0, p1 = p0[0].astype(float), p1[0].astype(float)
-            if observed:  # the contact stages' heights and A's slide length from the clouds (observed_contact.py)
+            if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
                 xy = p1[:2] if spec.primitive == "touch" else p0[:2]
                 z = contact_heights(self.strategy, self.index, spec.primitive, pts, xy, obs.table_top, obs.edge_x,
                                     pinching=a == pincher)  # fmt: skip
