@@ -7,14 +7,14 @@ import pytest
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     apply_heights,
+    apply_xy,
+    c_pinch_xy,
     cap_slide,
     contact_heights,
     object_top,
     overhang_mid,
     slide_cap,
     squeeze_end,
-    apply_xy,
-    c_pinch_xy,
 )
 from flatlab_lerobot.strategies.a_push_to_edge import a_press, a_slide, a_touch, slide_distance
 from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP

@@ -51,17 +51,7 @@ from flatlab_lerobot.policies import fps_indices
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
-from flatlab_lerobot.policies.unified.observed_contact import (
-    C_PINCH_STAGES,
-    apply_heights,
-    apply_xy,
-    c_pinch_xy,
-    cap_slide,
-    contact_heights,
-    object_footprint_x,
-    slide_cap,
-    squeeze_end,
-)
+from flatlab_lerobot.policies.unified.observed_contact import object_footprint_x, observed_motion
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
@@ -250,27 +240,16 @@ class _Episode:
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
         motions, duration, heights = {}, 0.0, {}
         observed = self.policy.config.contact == "observed"
-        pts = obs.object_points if observed else None
-        pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
+        if observed:
+            pts = obs.object_points
+            pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
         for a in arms:
             (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
             p0, p1 = p0[0].astype(float), p1[0].astype(float)
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
-                xy = p1[:2] if spec.primitive == "touch" else p0[:2]
-                z = contact_heights(self.strategy, self.index, spec.primitive, pts, xy, obs.table_top, obs.edge_x,
-                                    pinching=a == pincher)  # fmt: skip
-                heights[a] = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}
-                p0, p1 = apply_heights(p0, p1, *z)
-                if self.strategy == "A" and spec.primitive == "slide":
-                    cap = slide_cap(pts, obs.edge_x)
-                    heights[a]["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
-                    p1 = cap_slide(p0, p1, cap)
-                if self.strategy == "C" and a == pincher and spec.primitive in C_PINCH_STAGES:
-                    hand = self.expert.fk(self.q)[a][0]  # the commanded hand (proprioception)
-                    p0, p1 = apply_xy(p0, p1, c_pinch_xy(spec.primitive, pts, hand[:2]))
-                if self.strategy == "C" and spec.primitive == "squeeze":
-                    heights[a]["squeeze"] = {"learned_end": [float(v) for v in p1[:2]]}
-                    p1 = squeeze_end(p0, p1, pts)
+                hand_xy = lambda a=a: self.expert.fk(self.q)[a][0][:2]  # noqa: E731  the commanded hand
+                p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
+                                                     obs.table_top, obs.edge_x, a == pincher, hand_xy)  # fmt: skip
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
             motions[a] = ArmMotion((p0, _rotmat(q0[0])), (p1, _rotmat(q1[0])), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))

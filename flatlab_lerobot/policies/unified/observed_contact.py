@@ -108,11 +108,13 @@ def _b(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x:
 
 def _c(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
     press, pinch = press_tcp_z(table), pinch_tcp_z(table)
-    return {"touch": (press + C_TOUCH_ABOVE, press), "squeeze": (press, press), "press": (pinch + C_STRADDLE_ABOVE, pinch),
-            "grasp": (pinch, pinch), "lift": (pinch, None)}.get(primitive, (None, None))  # fmt: skip
+    return {"touch": (press + C_TOUCH_ABOVE, press), "squeeze": (press, press),
+            "press": (pinch + C_STRADDLE_ABOVE, pinch), "grasp": (pinch, pinch),
+            "lift": (pinch, None)}.get(primitive, (None, None))  # fmt: skip
 
 
-RULES = {"A": _a, "B": _b, "C": _c}  # strategy -> (index, primitive, points, contact xy, table top, edge x) -> (z start, z end)
+# strategy -> (index, primitive, points, contact xy, table top, edge x) -> (z start, z end)
+RULES = {"A": _a, "B": _b, "C": _c}
 
 
 C_PINCH_STAGES = ("press", "grasp", "lift")  # C's stages of the pinching hand (the other one stays out of the way)
@@ -168,6 +170,11 @@ def cap_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
     return p0 + (p1 - p0) * (max(cap, 0.0) / dx)
 
 
+def seen_centre(points: np.ndarray) -> np.ndarray:
+    """(x, y) of the seen object's centre: the mean of its cloud (the expert reads the sheet's centroid)."""
+    return points[:, :2].mean(0)
+
+
 def squeeze_end(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> np.ndarray:
     """C's squeeze end moved along the squeeze's own horizontal direction to stop C_END_HALF_GAP short of
     the seen cloth's centre (never behind its start); unchanged when the cloth is unseen or it does not move."""
@@ -175,7 +182,7 @@ def squeeze_end(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> np.ndarra
     if len(points) < MIN_POINTS or np.linalg.norm(d) < 1e-6:
         return p1
     d /= np.linalg.norm(d)
-    reach = max(float((points[:, :2].mean(0) - np.asarray(p0[:2], float)) @ d) - C_END_HALF_GAP, 0.0)
+    reach = max(float((seen_centre(points) - np.asarray(p0[:2], float)) @ d) - C_END_HALF_GAP, 0.0)
     end = np.array(p1, float)
     end[:2] = np.asarray(p0[:2], float) + reach * d
     return end
@@ -186,7 +193,7 @@ def c_pinch_xy(primitive: str, points: np.ndarray, hand_xy) -> np.ndarray | None
     centre, its grasp and lift where the hand is (``hand_xy``); None: keep the learned (other stages, or
     too few points seen)."""
     if primitive == "press":
-        return None if len(points) < MIN_POINTS else points[:, :2].mean(0)
+        return None if len(points) < MIN_POINTS else seen_centre(points)
     if primitive in ("grasp", "lift"):
         return np.asarray(hand_xy, float)[:2]
     return None
@@ -200,3 +207,27 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
         p0[:2] += shift
         p1[:2] += shift
     return p0, p1
+
+
+def observed_motion(
+    strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
+    table: float, edge_x: float, pinching: bool, hand_xy,
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
+    heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
+    whose learned gripper closes most; ``hand_xy()``: where this arm's hand is (called only for C's pinch).
+    Returns the motion and what was decided (the stage log)."""
+    xy = p1[:2] if primitive == "touch" else p0[:2]  # the contact point: where the touch ends, else the start
+    z = contact_heights(strategy, index, primitive, points, xy, table, edge_x, pinching=pinching)
+    log: dict = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}
+    p0, p1 = apply_heights(p0, p1, *z)
+    if strategy == "A" and primitive == "slide":
+        cap = slide_cap(points, edge_x)
+        log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
+        p1 = cap_slide(p0, p1, cap)
+    if strategy == "C" and pinching and primitive in C_PINCH_STAGES:
+        p0, p1 = apply_xy(p0, p1, c_pinch_xy(primitive, points, hand_xy()))
+    if strategy == "C" and primitive == "squeeze":
+        log["squeeze"] = {"learned_end": [float(v) for v in p1[:2]]}
+        p1 = squeeze_end(p0, p1, points)
+    return p0, p1, log
