@@ -337,6 +337,7 @@ def _plot(sw: dict, measured: list, png: Path, paper_pos: dict | None) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullLocator
 
     fig, ax = plt.subplots(figsize=(5.2, 3.2))
     xs = [v for v, _ in measured]
@@ -356,6 +357,8 @@ def _plot(sw: dict, measured: list, png: Path, paper_pos: dict | None) -> None:
         ax.set_ylabel("grasp P-MSE")
     if min(xs) > 0:
         ax.set_xscale("log")
+        ax.xaxis.set_minor_locator(NullLocator())  # the swept values only: no crowded minor labels
+        ax.set_xticks(xs, [f"{v:g}" for v in xs])
     ax.axvline(float(sw["default"]), color="grey", lw=0.8, ls=":")
     ax.set_xlabel(sw["label"])
     ax.set_title("ours" + (" (solid) vs the paper (dashed)" if paper_pos else "") + "; dotted: the default", fontsize=9)
