@@ -30,6 +30,7 @@ def main(argv=None) -> int:
     ap.add_argument("--object", required=True, help="catalog object id")
     ap.add_argument("--seed", type=int, default=1000, help="episode seed (flatlab eval's trial t: 1000 + t)")
     ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--steps", default=None, help="FIRST:LAST: spread the frames over these steps only (default: all)")
     ap.add_argument("--size", type=int, default=384, help="render size (px)")
     ap.add_argument("--out", type=Path, required=True)
     args, extra = ap.parse_known_args(argv)
@@ -49,7 +50,14 @@ def main(argv=None) -> int:
         video = next((tmp / "eval").rglob("*.mp4"))
         with av.open(str(video)) as c:
             frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
-        idx = np.linspace(0, len(frames) - 1, args.frames).round().astype(int)
+        first, last = 0, len(frames) - 1
+        if args.steps:
+            try:
+                first, last = (int(v) for v in args.steps.split(":"))
+            except ValueError:
+                ap.error(f"--steps {args.steps!r}: want FIRST:LAST, two step numbers")
+            first, last = max(0, first), min(len(frames) - 1, last)
+        idx = np.linspace(first, last, args.frames).round().astype(int)
         h, w = frames[0].shape[:2]
         strip = Image.new("RGB", (w * len(idx), h + 22), "white")
         draw = ImageDraw.Draw(strip)
