@@ -12,7 +12,6 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     cap_slide,
     contact_heights,
     object_top,
-    observed_motion,
     overhang_mid,
     slide_cap,
     squeeze_end,
@@ -138,42 +137,16 @@ def test_contact_switch_is_validated():
         FlatLabUnifiedConfig(contact="expert")
 
 
-def test_c_straddle_at_the_seen_centre():
+def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():
     sheet = _box_cloud((0.02, 0.03), (0.2, 0.1, 0.03))  # a squeezed sheet with its fold
-    centre = c_pinch_xy("press", sheet)
+    centre = c_pinch_xy("press", sheet, (0.5, 0.5))
     assert centre == pytest.approx(sheet[:, :2].mean(0)) and centre == pytest.approx((0.02, 0.03), abs=4e-3)
-    for other in ("grasp", "lift", "squeeze"):  # the grasp and lift start where the hand is (observed_motion)
-        assert c_pinch_xy(other, sheet) is None
-    assert c_pinch_xy("press", sheet[:3]) is None  # too few points seen: the learned straddle
+    assert c_pinch_xy("grasp", sheet, (0.01, 0.02)) == pytest.approx((0.01, 0.02))  # where the hand is
+    assert c_pinch_xy("lift", sheet, (0.01, 0.02)) == pytest.approx((0.01, 0.02))
+    assert c_pinch_xy("squeeze", sheet, (0.01, 0.02)) is None and c_pinch_xy("press", sheet[:3], None) is None
     p0, p1 = np.r_[0.0, -0.01, 0.82], np.r_[0.003, -0.006, 0.76]  # a straddle: down, a few mm sideways
     a, b = apply_xy(p0, p1, centre)
     assert a[:2] == pytest.approx(centre) and b[:2] - a[:2] == pytest.approx(p1[:2] - p0[:2])
     assert (a[2], b[2]) == (0.82, 0.76)
     a, b = apply_xy(p0, p1, None)
     np.testing.assert_array_equal(b, p1)
-
-
-def test_a_stage_that_starts_where_the_hand_is_starts_there():
-    """A release predicted to start 1.1 cm ahead of where the slide left the hand: the runner would first move
-    the pressing hand there, dragging the object; from_hand starts it at the hand with its learned displacement."""
-    disc = _box_cloud((0.25, 0.0), (0.12, 0.12, 0.002))
-    hand = np.r_[0.236, -0.027]
-    p0, p1 = np.r_[0.247, -0.026, 0.759], np.r_[0.249, -0.028, 0.889]
-    calls = []
-
-    def hand_xy():
-        calls.append(1)
-        return hand
-
-    a, b, log = observed_motion("A", 7, "release", p0, p1, disc, TABLE, EDGE, True, hand_xy, from_hand=True)
-    assert a[:2] == pytest.approx(hand) and b[:2] - a[:2] == pytest.approx(p1[:2] - p0[:2])
-    assert log["start_moved"] == pytest.approx(np.linalg.norm(p0[:2] - hand))
-    assert a[2] == pytest.approx(object_top(disc, hand) + FINGER_TIP_BELOW_TCP - 0.001)  # the press height rule
-    a, b, log = observed_motion("A", 4, "touch", p0, p1, disc, TABLE, EDGE, True, hand_xy, from_hand=False)
-    assert a[:2] == pytest.approx(p0[:2]) and "start_moved" not in log and len(calls) == 1  # a touch: learned start
-    # C's pinching hand: the straddle (press, from the scene) at the seen centre, the grasp from the hand
-    sheet = _box_cloud((0.02, 0.03), (0.2, 0.1, 0.03))
-    a, _, _ = observed_motion("C", 5, "press", p0, p1, sheet, TABLE, EDGE, True, hand_xy)
-    assert a[:2] == pytest.approx(sheet[:, :2].mean(0))
-    a, _, _ = observed_motion("C", 6, "grasp", p0, p1, sheet, TABLE, EDGE, True, hand_xy, from_hand=True)
-    assert a[:2] == pytest.approx(hand)

@@ -249,8 +249,7 @@ class _Episode:
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
                 hand_xy = lambda a=a: self.expert.fk(self.q)[a][0][:2]  # noqa: E731  the commanded hand
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
-                                                     obs.table_top, obs.edge_x, a == pincher, hand_xy,
-                                                     from_hand=spec.start == "current")  # fmt: skip
+                                                     obs.table_top, obs.edge_x, a == pincher, hand_xy)  # fmt: skip
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
             motions[a] = ArmMotion((p0, _rotmat(q0[0])), (p1, _rotmat(q1[0])), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))

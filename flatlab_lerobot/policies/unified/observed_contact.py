@@ -1,7 +1,6 @@
-"""``--policy.contact=observed``: the heights of the stages that touch the object, the length of A's
-slide, C's squeeze and straddle, and where the stages that continue a motion start, come from the observed
-clouds and the hand's pose by the expert's own rules; the other x, y, every orientation, gripper width, arm
-choice and the strategy stay learned.  Not in the paper: a measured answer to "how much of the gap is
+"""``--policy.contact=observed``: the heights of the stages that touch the object, and the length of A's
+slide, come from the observed clouds by the expert's own rules; every x, y, orientation, gripper width,
+arm choice and strategy stays learned.  Not in the paper: a measured answer to "how much of the gap is
 the executor's upward height bias" (1-1.5 cm on Train frames too, docs/executor.md), which keeps strategy
 A's press above 5-mm discs and B's squeeze above thin boards.
 
@@ -29,14 +28,10 @@ the observed quantities in place of the privileged ones:
   seen cloth's centre (the mean of its cloud), as the expert's hands stop short of the sheet's centre:
   the learned squeezes stopped 5-8 cm short and raised no fold (towel, cotton sheet; seen in the stage
   log, the cloth's top stayed 3 mm above the table).
-* C's straddle (the pinching hand's press): at the seen cloth's centre, as the expert straddles the fold
-  at the sheet's current centre: the learned straddle stood 2.7-3.5 cm beside a raised fold across the
+* C's pinch (the pinching hand's press, grasp, lift): at the seen cloth's centre, as the expert straddles
+  the fold at the sheet's current centre (its press at the centre of the cloud seen then; grasp and lift
+  from where the hand is): the learned straddle stood 2.7-3.5 cm beside a raised fold across the
   fingers' closing direction (``shorts_denim``, a Train object; the stage log) and closed beside it.
-* Every stage that the expert starts where the hand is (``StageSpec.start == "current"``: press, slide,
-  release, squeeze, grasp, lift, ...) starts there (the commanded hand, proprioception), with its learned
-  horizontal displacement: a learned start a few mm to 1.3 cm away from where the previous stage ended
-  made the runner move the hand there first, in contact -- A's releases dragged a CD 1.2 cm towards the
-  edge and the third one off the table (``disk_compact_disc``, a Train object; the stage log).
 * The other stages: learned.
 
 Where a stage sets only its start height (release, lift) the learned displacement is kept.
@@ -193,11 +188,14 @@ def squeeze_end(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> np.ndarra
     return end
 
 
-def c_pinch_xy(primitive: str, points: np.ndarray) -> np.ndarray | None:
-    """Where (x, y) C's pinching hand straddles the fold: its press at the seen cloth's centre; None: keep
-    the learned (other stages -- its grasp and lift start where the hand is --, or too few points seen)."""
-    if primitive == "press" and len(points) >= MIN_POINTS:
-        return seen_centre(points)
+def c_pinch_xy(primitive: str, points: np.ndarray, hand_xy) -> np.ndarray | None:
+    """Where (x, y) C's pinching hand works in ``primitive``: its press (the straddle) at the seen cloth's
+    centre, its grasp and lift where the hand is (``hand_xy``); None: keep the learned (other stages, or
+    too few points seen)."""
+    if primitive == "press":
+        return None if len(points) < MIN_POINTS else seen_centre(points)
+    if primitive in ("grasp", "lift"):
+        return np.asarray(hand_xy, float)[:2]
     return None
 
 
@@ -213,28 +211,22 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
 
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
-    table: float, edge_x: float, pinching: bool, hand_xy, from_hand: bool = False,
+    table: float, edge_x: float, pinching: bool, hand_xy,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
-    start where the hand is, the heights, A's slide cap, C's straddle position and C's squeeze length.
-    ``pinching``: this arm is the one whose learned gripper closes most; ``hand_xy()``: where this arm's
-    hand is (called only when ``from_hand``: the stage starts where the hand is, ``StageSpec.start``).
+    heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
+    whose learned gripper closes most; ``hand_xy()``: where this arm's hand is (called only for C's pinch).
     Returns the motion and what was decided (the stage log)."""
-    log: dict = {}
-    if from_hand:
-        hand = np.asarray(hand_xy(), float)[:2]
-        log["start_moved"] = float(np.linalg.norm(hand - np.asarray(p0[:2], float)))
-        p0, p1 = apply_xy(p0, p1, hand)
     xy = p1[:2] if primitive == "touch" else p0[:2]  # the contact point: where the touch ends, else the start
     z = contact_heights(strategy, index, primitive, points, xy, table, edge_x, pinching=pinching)
-    log.update({"learned": [float(p0[2]), float(p1[2])], "observed": list(z)})
+    log: dict = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}
     p0, p1 = apply_heights(p0, p1, *z)
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
         p1 = cap_slide(p0, p1, cap)
     if strategy == "C" and pinching and primitive in C_PINCH_STAGES:
-        p0, p1 = apply_xy(p0, p1, c_pinch_xy(primitive, points))
+        p0, p1 = apply_xy(p0, p1, c_pinch_xy(primitive, points, hand_xy()))
     if strategy == "C" and primitive == "squeeze":
         log["squeeze"] = {"learned_end": [float(v) for v in p1[:2]]}
         p1 = squeeze_end(p0, p1, points)
