@@ -34,6 +34,14 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=384, help="render size (px)")
     ap.add_argument("--out", type=Path, required=True)
     args, extra = ap.parse_known_args(argv)
+    window = None
+    if args.steps:  # checked before the episode runs
+        try:
+            window = tuple(int(v) for v in args.steps.split(":"))
+        except ValueError:
+            window = ()
+        if len(window) != 2:
+            ap.error(f"--steps {args.steps!r}: want FIRST:LAST, two step numbers")
     extra = [a for a in extra if a != "--"]
     exe = Path(sys.executable).parent / "lerobot-eval"
     tmp = Path(tempfile.mkdtemp(prefix="keyframes_"))
@@ -50,13 +58,8 @@ def main(argv=None) -> int:
         video = next((tmp / "eval").rglob("*.mp4"))
         with av.open(str(video)) as c:
             frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
-        first, last = 0, len(frames) - 1
-        if args.steps:
-            try:
-                first, last = (int(v) for v in args.steps.split(":"))
-            except ValueError:
-                ap.error(f"--steps {args.steps!r}: want FIRST:LAST, two step numbers")
-            first, last = max(0, first), min(len(frames) - 1, last)
+        first, last = window or (0, len(frames) - 1)
+        first, last = max(0, first), min(len(frames) - 1, last)
         idx = np.linspace(first, last, args.frames).round().astype(int)
         h, w = frames[0].shape[:2]
         strip = Image.new("RGB", (w * len(idx), h + 22), "white")
