@@ -347,14 +347,17 @@ def test_lerobot_train_trains_and_checkpoint_reloads(tiny_set, tmp_path):
     assert em.main(["--policy.path", str(ckpt), "--dataset", str(ds), "--out", str(mfile)]) == 0
     rep = json.loads(mfile.read_text())["splits"]
     assert set(rep) == {"train"} and {"grasp", "grasp/A", "grasp/B", "all"} <= set(rep["train"])
-    se = []
+    se, dz = [], []
     for _, r in df[df.demo_success & df.apply(lambda r: r.primitive_index == C.GRASP_STAGE[r.strategy], axis=1)].iterrows():
         tcp = np.concatenate([np.r_[r[f"{a}_tcp_pos"], r[f"{a}_tcp_quat"], r[f"{a}_gripper_measured"]] for a in C.ARMS])
         pp = pol.predict_poses(scene[int(r.sample_index)], r.strategy, int(r.primitive_index), r.primitive, tcp,
                                object_cloud=objs[int(r.sample_index), : pol.config.input_features[C.OBS_OBJECT_CLOUD].shape[0]])
         se += [float(((pp[a]["start"][0][0] - r[f"{a}_start_pos"]) ** 2).sum()) for a in C.ARMS if r[f"{a}_active"]]
+        dz += [float(pp[a]["start"][0][0][2] - r[f"{a}_start_pos"][2]) for a in C.ARMS if r[f"{a}_active"]]
     assert rep["train"]["grasp"]["n_arm_samples"] == len(se)
     assert rep["train"]["grasp"]["p_mse_start_m2"] == pytest.approx(np.mean(se), rel=1e-4)
+    # the signed height error: its sign survives (an untrained model is off by cm, so 0 would be a bug)
+    assert rep["train"]["grasp"]["z_bias_start_m"] == pytest.approx(np.mean(dz), rel=1e-3, abs=1e-6)
     assert em.main(["--policy.path", str(tmp_path), "--dataset", str(ds)]) == 2
 
 

@@ -8,6 +8,8 @@ Per split, per strategy's grasp primitive (a_grasp / b_squeeze / c_pinch start p
 * ``p_mse``: mean over commanded arms of ||p_hat - p||^2 (m^2), start and end poses;
 * ``r_err``: mean geodesic angle 2 arccos |<q_hat, q>| (rad);
 * ``grip_mae``: mean |gripper width error| (m);
+* ``z_bias``: mean signed height error z_hat - z (m), start and end poses: a model that leaves the
+  hand above the object on average shows it here, where the squared error hides the sign;
 * ``active_arm_accuracy`` (split rows ``all``): the predicted "primitive commands this arm" flag.
 
 The "grasp" rows are the paper's Grasping P-MSE (start pose of the grasp primitive).
@@ -53,6 +55,7 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None =
             for e in ("start", "end"):
                 res[f"{e}_se"] = ((p[f"{e}_pos"] - tgt[:, sl[f"{e}_pos"]]) ** 2).sum(-1)
                 res[f"{e}_th"] = geodesic_angle(p[f"{e}_quat"], tgt[:, sl[f"{e}_quat"]])
+                res[f"{e}_dz"] = p[f"{e}_pos"][:, 2] - tgt[:, sl[f"{e}_pos"]][:, 2]
             ge = ((p["gripper_start"] - tgt[:, sl["gripper_start"]]).abs() + (p["gripper_end"] - tgt[:, sl["gripper_end"]]).abs())[:, 0] / 2
             hit = ((p["active"][:, 0] > 0.5) == active).tolist()
             for b in range(len(active)):
@@ -69,6 +72,8 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None =
                     a["end_se"].append(float(res["end_se"][b]))
                     a["start_th"].append(float(res["start_th"][b]))
                     a["end_th"].append(float(res["end_th"][b]))
+                    a["start_dz"].append(float(res["start_dz"][b]))
+                    a["end_dz"].append(float(res["end_dz"][b]))
                     a["grip"].append(float(ge[b]))
                     a["arm"].append(ARMS[i])
     out: dict = {}
@@ -76,7 +81,8 @@ def evaluate(policy, dataset_root: Path, batch_size: int = 32, tta: int | None =
         row = {"n_arm_samples": len(a["start_se"]),
                "p_mse_start_m2": float(np.mean(a["start_se"])), "p_mse_end_m2": float(np.mean(a["end_se"])),
                "r_err_start_rad": float(np.mean(a["start_th"])), "r_err_end_rad": float(np.mean(a["end_th"])),
-               "grip_mae_m": float(np.mean(a["grip"]))}  # fmt: skip
+               "grip_mae_m": float(np.mean(a["grip"])),
+               "z_bias_start_m": float(np.mean(a["start_dz"])), "z_bias_end_m": float(np.mean(a["end_dz"]))}  # fmt: skip
         out.setdefault(split, {})[key] = row
     for split, hits in act_acc.items():
         out.setdefault(split, {})["all"]["active_arm_accuracy"] = float(np.mean(hits))
