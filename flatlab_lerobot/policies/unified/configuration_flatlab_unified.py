@@ -91,10 +91,6 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
-    # strategy B: both hands' commanded positions on one line along the observed object's squeeze axis
-    # (the expert's geometry), each keeping its learned height and position along the axis (not in the
-    # paper; paired_squeeze.py)
-    pair_squeeze: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):

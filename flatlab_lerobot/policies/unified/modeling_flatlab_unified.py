@@ -52,7 +52,6 @@ from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabE
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import object_footprint_x, observed_motion
-from flatlab_lerobot.policies.unified.paired_squeeze import observed_squeeze_axis, pair
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
@@ -244,33 +243,19 @@ class _Episode:
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
-        pos = {}
         for a in arms:
-            p0, p1 = poses[a]["start"][0][0].astype(float), poses[a]["end"][0][0].astype(float)
+            (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
+            p0, p1 = p0[0].astype(float), p1[0].astype(float)
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
                 hand_xy = lambda a=a: self.expert.fk(self.q)[a][0][:2]  # noqa: E731  the commanded hand
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
                                                      obs.table_top, obs.edge_x, a == pincher, hand_xy)  # fmt: skip
-            pos[a] = [p0, p1]
-        paired = None
-        if self.policy.config.pair_squeeze and self.strategy == "B" and len(arms) == len(ARMS):
-            u = observed_squeeze_axis(obs.object_points)  # B's hands face each other (paired_squeeze.py)
-            if u is not None:
-                moved = []
-                for e in (0, 1):
-                    before = [pos[a][e].copy() for a in ARMS]
-                    pos[ARMS[0]][e], pos[ARMS[1]][e] = pair(pos[ARMS[0]][e], pos[ARMS[1]][e], u)
-                    moved.append(max(float(np.linalg.norm(pos[a][e] - b)) for a, b in zip(ARMS, before)))
-                paired = {"axis": [float(v) for v in u], "moved": moved}
-        for a in arms:
-            (p0, p1), q0, q1 = pos[a], poses[a]["start"][1], poses[a]["end"][1]
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
             motions[a] = ArmMotion((p0, _rotmat(q0[0])), (p1, _rotmat(q1[0])), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed else {}),
-                         **({"paired": paired} if paired else {})})  # fmt: skip
+                         "duration": duration, **({"heights": heights} if observed else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
     def _proprio(self, obs: Observed) -> np.ndarray:
