@@ -125,6 +125,38 @@ def test_cloud_normalization_invariance():
         assert torch.allclose(a, scaled, atol=1e-4) != use_scale
 
 
+def test_tta_averages_turned_subsets_and_one_pass_is_unchanged():
+    """tta=1 is the single pass the checkpoints were selected with; tta=k averages the class probabilities
+    of k passes, pass j on fixed subset j turned by 2*pi*j/k about z; a bad value names the flag."""
+    import math
+
+    from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import normalize_cloud
+
+    policy = _policy()
+    cloud = torch.randn(3, 128, 3, generator=torch.Generator().manual_seed(2))
+    one = policy.predict_logits({CLOUD_KEY: cloud})
+    assert torch.equal(one, policy.head(policy.features(cloud)))
+    policy.config.tta = 4
+    four = policy.predict_logits({CLOUD_KEY: cloud})
+    probs = []
+    for j in range(4):
+        idx = torch.randperm(128, generator=torch.Generator().manual_seed(j))[:64]
+        x, r = normalize_cloud(cloud[:, idx], return_radius=True)
+        a = 2 * math.pi * j / 4
+        xy = torch.stack([math.cos(a) * x[..., 0] - math.sin(a) * x[..., 1],
+                          math.sin(a) * x[..., 0] + math.cos(a) * x[..., 1]], -1)  # fmt: skip
+        f = policy.encoder(torch.cat([xy, x[..., 2:]], -1))
+        f = torch.cat([f, policy.scale_embed(torch.log(r)[:, None])], 1)
+        probs.append(policy.head(f).softmax(1))
+    assert torch.allclose(four.exp(), torch.stack(probs).mean(0), atol=1e-5)
+    assert not torch.allclose(four, one, atol=1e-4)  # the passes differ
+    policy.config.tta = 1
+    with pytest.raises(ValueError, match="--policy.tta"):
+        FlatLabStrategyConfig(tta=0)
+    with pytest.raises(ValueError, match="augment_yaw"):
+        FlatLabStrategyConfig(tta=4, augment_yaw=False)
+
+
 def test_nt_xent_matches_formula():
     z = torch.nn.functional.normalize(torch.randn(6, 4, generator=torch.Generator().manual_seed(0)), dim=1)
     labels = torch.tensor([0, 2, 0, 2, 1, 0])

@@ -229,6 +229,15 @@ def test_executor_tta_reaches_every_stage_call(tiny):
     assert seen and all(t == 3 for t in seen)
 
 
+def test_generator_tta_reaches_the_strategy_choice_and_is_restored(tiny):
+    pol = _load(tiny["artifact"], generator_tta=4)
+    seen = []
+    orig = pol.generator.predict_strategy
+    pol.generator.predict_strategy = lambda batch: (seen.append(pol.generator.config.tta), orig(batch))[1]
+    _rollout([pol], steps=2)
+    assert seen == [4] and pol.generator.config.tta == 1  # the generator's own value again after the choice
+
+
 @pytest.mark.parametrize("strategy", ["A", "B"])
 def test_fixed_strategy_is_the_learned_slide_or_lift_baseline(tiny, tmp_path, strategy):
     pol = _load(tiny["artifact"], strategy=strategy)
@@ -248,6 +257,8 @@ def test_config_rejects_bad_values():
         FlatLabUnifiedConfig(max_push_passes=4)
     with pytest.raises(ValueError, match="--policy.executor_tta"):
         FlatLabUnifiedConfig(executor_tta=-1)
+    with pytest.raises(ValueError, match="--policy.generator_tta"):
+        FlatLabUnifiedConfig(generator_tta=65)
     with pytest.raises(ValueError, match="input_key"):
         FlatLabUnifiedConfig(generator=FlatLabStrategyConfig(input_key="observation.scene_pointcloud"))
 

@@ -275,7 +275,11 @@ def main(argv=None) -> int:
     ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
                     "copied into the result as 'training'")
     ap.add_argument("--summarize", nargs="+", type=Path, help="result JSONs: print a markdown table and exit")
+    ap.add_argument("--tta", type=int, default=None,
+                    help="inference passes averaged (flatlab_strategy `tta`; default: the checkpoint's config)")
     args = ap.parse_args(argv)
+    if args.tta is not None and not 1 <= args.tta <= 64:
+        ap.error(f"--tta {args.tta}: must be in [1, 64]")
     if args.summarize:
         text = summarize(args.summarize)
         if args.out:
@@ -297,9 +301,13 @@ def main(argv=None) -> int:
             if (args.policy / "checkpoints").is_dir():
                 path, sel = select_checkpoint(args.policy)
             policy = load_policy(path)
+            if args.tta is not None:
+                if args.tta > 1 and (policy.config.is_image or not policy.config.augment_yaw):
+                    ap.error(f"--tta {args.tta}: {path} is an image model or was trained without yaw augmentation")
+                policy.config.tta = args.tta
             _, index, meta = load(args.set)
             logits = predict(policy, set_inputs(policy, args.set))
-            res.update({"policy": str(path), "selection": sel, "eval_set": str(args.set),
+            res.update({"policy": str(path), "selection": sel, "tta": int(policy.config.tta), "eval_set": str(args.set),
                         "eval_set_seed": meta.get("seed"), "eval_set_views": meta["settings"].get("views"),
                         **metrics(index, [LETTERS[i] for i in logits.argmax(1)])})  # fmt: skip
             tc = path / "train_config.json"

@@ -77,6 +77,10 @@ class FlatLabStrategyConfig(PreTrainedConfig):
     use_scale: bool = True  # also feed log(radius) of the cloud before normalization (its size in m)
     augment_yaw: bool = True  # random rotation about the vertical axis in training (clouds only)
     augment_jitter: float = 0.0  # std of Gaussian point jitter in training (unit-sphere units)
+    # inference passes averaged (test-time augmentation, clouds only): pass j draws the j-th fixed subset of
+    # n_points and turns the cloud by 2*pi*j/k about the vertical (the training's yaw augmentation); the
+    # class probabilities are averaged.  1: one pass (subset 0, no turn), as trained and selected
+    tta: int = 1
     # optimizer / scheduler presets (the paper: Adam 5e-4, wd 1e-4, x0.5 every 30 epochs)
     optimizer_lr: float = 5e-4
     optimizer_weight_decay: float = 1e-4
@@ -97,6 +101,11 @@ class FlatLabStrategyConfig(PreTrainedConfig):
                 raise ValueError(f"--policy.{name}: must be >= 1, got {getattr(self, name)!r}")
         if not self.encoder_channels or any(int(c) < 1 for c in self.encoder_channels):
             raise ValueError(f"--policy.encoder_channels: a non-empty list of ints >= 1, got {self.encoder_channels!r}")
+        if not 1 <= int(self.tta) <= 64:
+            raise ValueError(f"--policy.tta: must be in [1, 64], got {self.tta!r}")
+        if int(self.tta) > 1 and not self.augment_yaw:
+            raise ValueError("--policy.tta: passes > 1 turn the cloud about z, which a model trained with "
+                             "--policy.augment_yaw=false never saw; keep tta=1")
         if self.contrast_weight < 0:
             raise ValueError(f"--policy.contrast_weight: must be >= 0, got {self.contrast_weight}")
         if self.temperature <= 0:

@@ -118,9 +118,10 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return list(self._strategies)
 
     # ------------------------------------------------------------------ inputs
-    def _prepare(self, x: Tensor, train: bool) -> tuple[Tensor, Tensor | None]:
+    def _prepare(self, x: Tensor, train: bool, tta_pass: int = 0, tta: int = 1) -> tuple[Tensor, Tensor | None]:
         """A batch of one input (B, N, C>=3) cloud or (B, 3, H, W) image -> (the encoder's input,
-        the cloud's radius before normalization (B,) or None)."""
+        the cloud's radius before normalization (B,) or None).  At inference, pass ``tta_pass`` of ``tta``
+        draws fixed subset ``tta_pass`` and turns the cloud by 2*pi*tta_pass/tta about z (config ``tta``)."""
         cfg = self.config
         if cfg.is_image:
             return x.float(), None
@@ -131,15 +132,19 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             if n < cfg.n_points:  # fewer points than asked: repeat random ones
                 idx = torch.randint(0, n, (x.shape[0], cfg.n_points), device=x.device)
             x = torch.gather(x, 1, idx[..., None].expand(-1, -1, 3))
-        elif n != cfg.n_points:
-            g = torch.Generator().manual_seed(0)
+        elif n != cfg.n_points or tta_pass:
+            g = torch.Generator().manual_seed(tta_pass)
             idx = torch.randperm(n, generator=g)[: cfg.n_points] if n >= cfg.n_points else (
                 torch.randint(0, n, (cfg.n_points,), generator=g))  # fmt: skip
             x = x[:, idx.to(x.device)]
         x, radius = normalize_cloud(x, return_radius=True)
+        turn = None
         if train and cfg.augment_yaw:
-            a = torch.rand(x.shape[0], device=x.device) * 2 * math.pi
-            c, s = torch.cos(a), torch.sin(a)
+            turn = torch.rand(x.shape[0], device=x.device) * 2 * math.pi
+        elif not train and tta_pass:
+            turn = x.new_full((x.shape[0],), 2 * math.pi * tta_pass / tta)
+        if turn is not None:
+            c, s = torch.cos(turn), torch.sin(turn)
             xy = torch.stack([c[:, None] * x[..., 0] - s[:, None] * x[..., 1],
                               s[:, None] * x[..., 0] + c[:, None] * x[..., 1]], dim=-1)  # fmt: skip
             x = torch.cat([xy, x[..., 2:]], dim=-1)
@@ -153,11 +158,11 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             raise KeyError(f"flatlab_strategy: the batch has no {key!r} (its input_key); keys: {sorted(batch)}")
         return batch[key]
 
-    def features(self, x: Tensor, train: bool = False) -> Tensor:
+    def features(self, x: Tensor, train: bool = False, tta_pass: int = 0, tta: int = 1) -> Tensor:
         """F: the encoder's global feature, with the embedded log-radius (metres) of the cloud
         when ``use_scale`` (the unit-sphere normalization removes the object's size, which
         decides A vs B for a rescaled object)."""
-        x, radius = self._prepare(x, train)
+        x, radius = self._prepare(x, train, tta_pass, tta)
         f = self.encoder(x)
         if self.scale_embed is not None:
             f = torch.cat([f, self.scale_embed(torch.log(radius)[:, None])], dim=1)
@@ -170,7 +175,12 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         x = self._input(batch)
         if x.dim() == (3 if self.config.is_image else 2):
             x = x.unsqueeze(0)
-        return self.head(self.features(x, train=False))
+        k = 1 if self.config.is_image else int(self.config.tta)
+        if k == 1:
+            return self.head(self.features(x, train=False))
+        # k passes (config ``tta``): the log of the averaged class probabilities
+        probs = torch.stack([self.head(self.features(x, False, j, k)).softmax(dim=1) for j in range(k)]).mean(0)
+        return probs.clamp(min=1e-12).log()
 
     @torch.no_grad()
     def predict_strategy(self, batch: dict[str, Tensor]) -> list[str]:

@@ -80,6 +80,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the executor's test-time augmentation passes per stage (flatlab_executor `tta`: k rotations about z
     # and point subsets, predictions averaged); 0: the executor config's own value
     executor_tta: int = 0
+    # the generator's test-time augmentation passes (flatlab_strategy `tta`: k fixed point subsets, the
+    # cloud turned by 2*pi*j/k about z, probabilities averaged); 0: the generator config's own value
+    generator_tta: int = 0
     # several objects per episode (the clear_desk scenario): after the final hold, carry what the lifting
     # arms hold past the usable edge (observation.cell) and let go, or, when the object cloud is not
     # aloft, go home; wait ``settle_s``; then start again -- a new strategy from the object cloud the env
@@ -99,6 +102,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
+        if not 0 <= int(self.generator_tta) <= 64:
+            raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if not 0 <= int(self.executor_tta) <= 64:
             raise ValueError(f"--policy.executor_tta: must be in [0, 64] (0: the executor's own), got {self.executor_tta}")
         if not 1 <= int(self.max_push_passes) <= A_PASSES:
