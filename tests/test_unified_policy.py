@@ -229,13 +229,13 @@ def test_executor_tta_reaches_every_stage_call(tiny):
     assert seen and all(t == 3 for t in seen)
 
 
-def test_generator_tta_reaches_the_strategy_choice_and_is_restored(tiny):
+def test_generator_tta_reaches_the_strategy_choice_and_leaves_the_generator_config(tiny):
     pol = _load(tiny["artifact"], generator_tta=4)
     seen = []
     orig = pol.generator.predict_strategy
-    pol.generator.predict_strategy = lambda batch: (seen.append(pol.generator.config.tta), orig(batch))[1]
+    pol.generator.predict_strategy = lambda batch, tta=None: (seen.append(tta), orig(batch, tta))[1]
     _rollout([pol], steps=2)
-    assert seen == [4] and pol.generator.config.tta == 1  # the generator's own value again after the choice
+    assert seen == [4] and pol.generator.config.tta == 1  # passed per call; the generator's own value untouched
 
 
 @pytest.mark.parametrize("strategy", ["A", "B"])

@@ -302,8 +302,7 @@ def main(argv=None) -> int:
                 path, sel = select_checkpoint(args.policy)
             policy = load_policy(path)
             if args.tta is not None:
-                if args.tta > 1 and (policy.config.is_image or not policy.config.augment_yaw):
-                    ap.error(f"--tta {args.tta}: {path} is an image model or was trained without yaw augmentation")
+                policy.config.check_tta(args.tta, f"--tta ({path})")
                 policy.config.tta = args.tta
             _, index, meta = load(args.set)
             logits = predict(policy, set_inputs(policy, args.set))

@@ -101,17 +101,22 @@ class FlatLabStrategyConfig(PreTrainedConfig):
                 raise ValueError(f"--policy.{name}: must be >= 1, got {getattr(self, name)!r}")
         if not self.encoder_channels or any(int(c) < 1 for c in self.encoder_channels):
             raise ValueError(f"--policy.encoder_channels: a non-empty list of ints >= 1, got {self.encoder_channels!r}")
-        if not 1 <= int(self.tta) <= 64:
-            raise ValueError(f"--policy.tta: must be in [1, 64], got {self.tta!r}")
-        if int(self.tta) > 1 and not self.augment_yaw:
-            raise ValueError("--policy.tta: passes > 1 turn the cloud about z, which a model trained with "
-                             "--policy.augment_yaw=false never saw; keep tta=1")
+        self.check_tta(self.tta)
         if self.contrast_weight < 0:
             raise ValueError(f"--policy.contrast_weight: must be >= 0, got {self.contrast_weight}")
         if self.temperature <= 0:
             raise ValueError(f"--policy.temperature: must be > 0, got {self.temperature}")
         if not 0 <= self.dropout < 1:
             raise ValueError(f"--policy.dropout: must be in [0, 1), got {self.dropout}")
+
+    def check_tta(self, k: int, flag: str = "--policy.tta") -> None:
+        """Raise (naming ``flag``) unless this model can average ``k`` inference passes: 1..64, and for
+        k > 1 a cloud model trained with yaw augmentation (the passes turn the cloud about z)."""
+        if not 1 <= int(k) <= 64:
+            raise ValueError(f"{flag}: must be in [1, 64], got {k!r}")
+        if int(k) > 1 and (self.is_image or not self.augment_yaw):
+            raise ValueError(f"{flag}: passes > 1 turn the cloud about z, which an image model or a model trained "
+                             "with --policy.augment_yaw=false never saw; keep 1")
 
     @property
     def is_image(self) -> bool:

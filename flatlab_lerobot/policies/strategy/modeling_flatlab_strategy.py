@@ -170,12 +170,13 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
-    def predict_logits(self, batch: dict[str, Tensor]) -> Tensor:
-        """(B, 3) logits of one observation per batch element (an unbatched one is batched)."""
+    def predict_logits(self, batch: dict[str, Tensor], tta: int | None = None) -> Tensor:
+        """(B, 3) logits of one observation per batch element (an unbatched one is batched); ``tta``
+        (default ``config.tta``): passes averaged."""
         x = self._input(batch)
         if x.dim() == (3 if self.config.is_image else 2):
             x = x.unsqueeze(0)
-        k = 1 if self.config.is_image else int(self.config.tta)
+        k = int(self.config.tta if tta is None else tta)  # checked by config.check_tta where it is set
         if k == 1:
             return self.head(self.features(x, train=False))
         # k passes (config ``tta``): the log of the averaged class probabilities
@@ -183,8 +184,8 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return probs.clamp(min=1e-12).log()
 
     @torch.no_grad()
-    def predict_strategy(self, batch: dict[str, Tensor]) -> list[str]:
-        logits = self.predict_logits(batch)
+    def predict_strategy(self, batch: dict[str, Tensor], tta: int | None = None) -> list[str]:
+        logits = self.predict_logits(batch, tta)
         self._strategies = [STRATEGY_LETTERS[int(i)] for i in logits.argmax(dim=1)]
         return self.strategies
 

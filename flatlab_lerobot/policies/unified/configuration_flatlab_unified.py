@@ -104,6 +104,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
+        if self.generator_tta:
+            self.generator.check_tta(self.generator_tta, "--policy.generator_tta")
         if not 0 <= int(self.executor_tta) <= 64:
             raise ValueError(f"--policy.executor_tta: must be in [0, 64] (0: the executor's own), got {self.executor_tta}")
         if not 1 <= int(self.max_push_passes) <= A_PASSES:

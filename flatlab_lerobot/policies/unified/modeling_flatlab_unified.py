@@ -325,12 +325,7 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         if n and len(pts) > n:  # the strategy set's clouds are FPS samples: same density here
             pts = pts[fps_indices(np.ascontiguousarray(pts, np.float64), n)]
         x = torch.as_tensor(pts, device=dev)[None]
-        own = self.generator.config.tta
-        self.generator.config.tta = self.config.generator_tta or own  # 0: the generator's own
-        try:
-            return self.generator.predict_strategy({GENERATOR_INPUT: x})[0]
-        finally:
-            self.generator.config.tta = own
+        return self.generator.predict_strategy({GENERATOR_INPUT: x}, tta=self.config.generator_tta or None)[0]
 
     @staticmethod
     def observed(batch: dict[str, Tensor]) -> list[Observed]:
