@@ -1,8 +1,8 @@
 """``--policy.contact=observed``: the heights of the stages that touch the object, and the length of A's
 slide, come from the observed clouds by the expert's own rules; every x, y, orientation, gripper width,
 arm choice and strategy stays learned.  Not in the paper: a measured answer to "how much of the gap is
-the executor's upward height bias" (1-1.5 cm on Train frames too, docs/executor.md), which keeps strategy
-A's press above 5-mm discs and B's squeeze above thin boards.
+the executor's upward height bias" (1-1.5 cm on Train frames too: the last constant-lr checkpoint's offset,
+docs/executor.md), which keeps strategy A's press above 5-mm discs and B's squeeze above thin boards.
 
 What is read: the seen object points (``observation.object_pointcloud``), the table top and the usable
 edge from the calibration (``observation.cell``) -- never ``environment_state``.  The expert's rules, with
