@@ -250,6 +250,42 @@ def test_fixed_strategy_is_the_learned_slide_or_lift_baseline(tiny, tmp_path, st
     assert PreTrainedConfig.from_pretrained(out).strategy == strategy
 
 
+def test_alt_executor_poses_its_strategies_and_the_executor_the_others(tiny, tmp_path):
+    """``unified-build --alt-executor X --alt-strategies A,C``: X's weights under ``alt_executor.*``, reloaded;
+    X poses every stage of A and C, the first executor every stage of B; bad flag values are refused."""
+    from safetensors.torch import load_file
+
+    torch.manual_seed(1)
+    alt_dir = tmp_path / "alt_ex"
+    FlatLabExecutorPolicy(PreTrainedConfig.from_pretrained(tiny["executor"])).save_pretrained(alt_dir)  # new weights
+    out = tmp_path / "two"
+    rec = unified_build.build(tiny["generator"], tiny["executor"], out, allow_unverified=True, alt_executor=alt_dir,
+                              alt_strategies=["A", "C"], log=lambda *a: None)  # fmt: skip
+    assert rec["alt_strategies"] == ["A", "C"] and "alt_executor" in rec["train_only_check"]
+    weights, own = load_file(str(out / "model.safetensors")), load_file(str(alt_dir / "model.safetensors"))
+    first = load_file(str(tiny["executor"] / "model.safetensors"))
+    assert any(not torch.equal(v, first[k]) for k, v in own.items())  # a different executor
+    for k, v in own.items():
+        torch.testing.assert_close(weights[f"alt_executor.{k}"], v, atol=0, rtol=0)
+    for strategy, used in (("A", "alt_executor"), ("B", "executor"), ("C", "alt_executor")):
+        pol = _load(out, strategy=strategy)
+        calls = {"executor": 0, "alt_executor": 0}
+        for name in calls:
+            sub = getattr(pol, name)
+            sub.predict_poses = (lambda f, n: lambda *a, **kw: (calls.__setitem__(n, calls[n] + 1), f(*a, **kw))[1])(
+                sub.predict_poses, name)
+        _rollout([pol], steps=3)
+        assert calls[used] >= 1 and sum(calls.values()) == calls[used], (strategy, calls)
+    with pytest.raises(unified_build.UnifiedBuildError, match="--alt-strategies"):
+        unified_build.build(tiny["generator"], tiny["executor"], tmp_path / "x", allow_unverified=True,
+                            alt_executor=alt_dir, alt_strategies=["D"], log=lambda *a: None)  # fmt: skip
+    with pytest.raises(unified_build.UnifiedBuildError, match="give both"):
+        unified_build.build(tiny["generator"], tiny["executor"], tmp_path / "y", allow_unverified=True,
+                            alt_executor=alt_dir, log=lambda *a: None)  # fmt: skip
+    with pytest.raises(ValueError, match="alt_executor_strategies"):
+        FlatLabUnifiedConfig(alt_executor_strategies=["A"])  # no alt_executor
+
+
 def test_config_rejects_bad_values():
     with pytest.raises(ValueError, match="strategy"):
         FlatLabUnifiedConfig(strategy="D")

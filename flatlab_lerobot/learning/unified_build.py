@@ -3,7 +3,8 @@ trained action execution module.
 
     flatlab unified-build --generator outputs/train/strategy_cpu/checkpoints/last/pretrained_model \\
         --executor outputs/train/executor_cpu/checkpoints/last/pretrained_model \\
-        --out outputs/unified/cpu [--strategy learned|A|B|C]
+        --out outputs/unified/cpu [--strategy learned|A|B|C] \
+        [--alt-executor outputs/train/executor_other/... --alt-strategies A,C]
 
 It writes a standard ``pretrained_model`` folder -- ``config.json`` (the unified config with both
 sub-configs nested), ``model.safetensors`` (``generator.*`` and ``executor.*`` weights, copied
@@ -17,6 +18,10 @@ unchanged), ``policy_preprocessor.json`` / ``policy_postprocessor.json`` -- that
   ``flatlab primitive-export`` one holding a non-Train object (unless ``--eval-only``, which marks
   every task ``split=test_*``); ``flatlab_executor`` refuses, when ``lerobot-train`` builds it, a
   dataset whose task list names a non-Train object (``check_training_tasks``).
+``--alt-executor`` adds a second trained executor that poses every stage of the strategies named by
+``--alt-strategies`` (``--executor`` poses the others); it must read the clouds ``--executor`` reads, and
+it is checked for Train-only data like the first.
+
 * This builder checks again, from each sub-model's ``train_config.json`` (``lerobot-train`` writes
   it beside the weights): the dataset it names must be on this machine and hold Train objects only --
   the executor's by its task list (``check_training_tasks``) and ``flatlab_export.json``
@@ -91,7 +96,7 @@ def _train_dataset(path: Path) -> tuple[Path | None, str]:
     return root, ""
 
 
-def check_executor_data(path: Path) -> dict:
+def check_executor_data(path: Path, flag: str = "--executor") -> dict:
     """The executor's training dataset holds Train objects only (raises), or why that is unknown."""
     from lerobot.datasets.io_utils import load_tasks
 
@@ -105,14 +110,14 @@ def check_executor_data(path: Path) -> dict:
     export = root / "flatlab_export.json"
     summary = json.loads(export.read_text()) if export.is_file() else {}
     if summary.get("eval_only"):
-        raise UnifiedBuildError(f"--executor {path}: trained on {root}, an --eval-only export ({export}: "
+        raise UnifiedBuildError(f"{flag} {path}: trained on {root}, an --eval-only export ({export}: "
                                 "field 'eval_only' is true): Test objects never train the unified policy")  # fmt: skip
 
     meta = SimpleNamespace(root=root, tasks=load_tasks(root))  # what check_training_tasks reads of the metadata
     try:
         check_training_tasks(meta)
     except PrimitiveExportError as e:
-        raise UnifiedBuildError(f"--executor {path}: {e}") from e
+        raise UnifiedBuildError(f"{flag} {path}: {e}") from e
     objects = sorted({TASK_RE.match(str(t))["object"] for t in meta.tasks.index})
     return {"verified": True, "dataset": str(root.resolve()), "objects": objects, "export": summary}
 
@@ -158,7 +163,8 @@ def env_flags(settings: dict) -> list[str]:
 
 
 def build(generator: Path, executor: Path, out: Path, strategy: str = "learned", allow_unverified: bool = False,
-          device: str = "cpu", object_points: int | None = None, log=print) -> dict:  # fmt: skip
+          device: str = "cpu", object_points: int | None = None, alt_executor: Path | None = None,
+          alt_strategies: tuple[str, ...] | list[str] = (), log=print) -> dict:  # fmt: skip
     """Write the artifact; returns the build record (also ``<out>/flatlab_unified_build.json``)."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.utils.constants import ACTION, OBS_STATE
@@ -179,18 +185,41 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     gen_cfg = _load_config(gen_dir, "flatlab_strategy", "--generator")
     ex_cfg = _load_config(ex_dir, "flatlab_executor", "--executor")
     checks = {"generator": check_generator_data(gen_dir), "executor": check_executor_data(ex_dir)}
+    alt_strategies = [str(x).strip() for x in alt_strategies if str(x).strip()]
+    if (alt_executor is None) != (not alt_strategies):
+        raise UnifiedBuildError("--alt-executor and --alt-strategies: give both (the second executor and the strategies "
+                                f"it poses) or neither (got {alt_executor!r}, {alt_strategies!r})")  # fmt: skip
+    bad = [x for x in alt_strategies if x not in STRATEGY_CHOICES[1:]] or len(set(alt_strategies)) < len(alt_strategies)
+    if bad:
+        raise UnifiedBuildError(f"--alt-strategies {','.join(alt_strategies)}: distinct strategies of "
+                                f"{list(STRATEGY_CHOICES[1:])}")  # fmt: skip
+    alt_dir = alt_cfg = None
+    if alt_executor is not None:
+        alt_dir = resolve_pretrained(alt_executor, "--alt-executor")
+        alt_cfg = _load_config(alt_dir, "flatlab_executor", "--alt-executor")
+        checks["alt_executor"] = check_executor_data(alt_dir, "--alt-executor")
     unverified = {k: v["reason"] for k, v in checks.items() if not v["verified"]}
     if unverified and not allow_unverified:
         raise UnifiedBuildError(
             "cannot check that these sub-models were trained on Train objects only: "
-            + "; ".join(f"--{k}: {why}" for k, why in unverified.items())
+            + "; ".join(f"--{k.replace('_', '-')}: {why}" for k, why in unverified.items())
             + " (--allow-unverified builds anyway and records it)"
         )
-    for sub in (gen_cfg, ex_cfg):
-        sub.device, sub.pretrained_path = device, None
+    for sub in (gen_cfg, ex_cfg, alt_cfg):
+        if sub is not None:
+            sub.device, sub.pretrained_path = device, None
     ex_feats = ex_cfg.input_features
     if OBS_POINTCLOUD not in ex_feats:
         raise UnifiedBuildError(f"--executor {ex_dir}: config.json has no input feature {OBS_POINTCLOUD!r}")
+    if alt_cfg is not None:
+        for key in (OBS_POINTCLOUD, OBS_OBJECT_CLOUD):
+            a, b = ex_feats.get(key), alt_cfg.input_features.get(key)
+            if (a is None) != (b is None) or (a is not None and tuple(a.shape) != tuple(b.shape)):
+                raise UnifiedBuildError(
+                    f"--alt-executor {alt_dir}: config.json input feature {key!r} is "
+                    f"{None if b is None else tuple(b.shape)}, --executor's {None if a is None else tuple(a.shape)}: "
+                    "both executors must read the same clouds"
+                )
     n = tuple(ex_feats[OBS_POINTCLOUD].shape)
     obj_ft = ex_feats.get(OBS_OBJECT_CLOUD) or gen_cfg.input_features.get(gen_cfg.input_key)
     k = tuple(obj_ft.shape) if obj_ft is not None else (256, 3)
@@ -200,6 +229,7 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
         k = (int(object_points), 3)
     cfg = FlatLabUnifiedConfig(
         generator=gen_cfg, executor=ex_cfg, strategy=strategy, device=device, push_to_hub=False,
+        alt_executor=alt_cfg, alt_executor_strategies=list(alt_strategies),
         input_features={
             OBS_STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
             OBS_CELL: PolicyFeature(FeatureType.STATE, (CELL_DIM,)),
@@ -214,6 +244,8 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     policy = FlatLabUnifiedPolicy(cfg)
     policy.generator.load_state_dict(load_file(str(gen_dir / "model.safetensors")), strict=True)
     policy.executor.load_state_dict(load_file(str(ex_dir / "model.safetensors")), strict=True)
+    if alt_dir is not None:
+        policy.alt_executor.load_state_dict(load_file(str(alt_dir / "model.safetensors")), strict=True)
     policy.eval()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -227,6 +259,7 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
         "strategy": strategy,
         "generator": str(gen_dir.resolve()),
         "executor": str(ex_dir.resolve()),
+        **({"alt_executor": str(alt_dir.resolve()), "alt_strategies": list(alt_strategies)} if alt_dir else {}),
         "train_only_check": checks,
         "allow_unverified": bool(unverified),
         "clouds": settings,
@@ -235,8 +268,9 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     }
     (out / BUILD_RECORD).write_text(json.dumps(record, indent=1, default=str))
     for k_, why in unverified.items():
-        log(f"[unified-build] WARNING: --{k_}: Train-only training data UNVERIFIED ({why})")
-    log(f"[unified-build] {out}: flatlab_unified (strategy={strategy}); evaluate with\n"
+        log(f"[unified-build] WARNING: --{k_.replace('_', '-')}: Train-only training data UNVERIFIED ({why})")
+    alt = f", strategies {','.join(alt_strategies)} posed by --alt-executor" if alt_dir else ""
+    log(f"[unified-build] {out}: flatlab_unified (strategy={strategy}{alt}); evaluate with\n"
         f"  flatlab eval --policy {out} --splits train,test_alpha,test_beta {' '.join(flags)}\n"
         f"  lerobot-eval --policy.path={out} --env.type=flatlab --env.object_id=<id> {' '.join(flags)}")  # fmt: skip
     return record
@@ -259,10 +293,15 @@ def main(argv=None) -> int:
     ap.add_argument("--object-points", type=int, default=None,
                     help="the env's n_object_points the artifact expects (default: the executor's); more points than "
                     "the generator's generator_cloud_points (2048) are farthest-point resampled to it, as the strategy set is")
+    ap.add_argument("--alt-executor", type=Path, default=None,
+                    help="a second trained flatlab_executor that poses the stages of --alt-strategies (same clouds)")
+    ap.add_argument("--alt-strategies", default="",
+                    help="comma-separated strategies (A, B, C) posed by --alt-executor, e.g. A,C")
     args = ap.parse_args(argv)
     try:
         build(args.generator, args.executor, args.out, args.strategy, args.allow_unverified, args.device,
-              object_points=args.object_points)
+              object_points=args.object_points, alt_executor=args.alt_executor,
+              alt_strategies=[x for x in args.alt_strategies.split(",") if x.strip()])
     except UnifiedBuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -65,6 +65,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the trained sub-models' configs (flatlab unified-build copies them from their pretrained_model folders)
     generator: FlatLabStrategyConfig = field(default_factory=FlatLabStrategyConfig)
     executor: FlatLabExecutorConfig = field(default_factory=FlatLabExecutorConfig)
+    # optionally a second trained executor (`flatlab unified-build --alt-executor`), which poses every stage
+    # of the strategies in ``alt_executor_strategies`` (``executor`` poses the others); its weights are the
+    # ``alt_executor.*`` entries of ``model.safetensors``.  It must read the same clouds as ``executor``.
+    alt_executor: FlatLabExecutorConfig | None = None
+    alt_executor_strategies: list[str] = field(default_factory=list)
     # learned: the generator picks the strategy per episode; A / B / C: fixed (A = learned Slide, B = learned Lift)
     strategy: str = "learned"
     control_dt: float = 0.1  # s: must match the env's 1/fps
@@ -118,6 +123,14 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.settle_s: must be in [0, 10] s, got {self.settle_s!r}")
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
+        alt = sorted(set(self.alt_executor_strategies))
+        if alt != sorted(self.alt_executor_strategies) or not set(alt) <= set(STRATEGY_CHOICES[1:]):
+            raise ValueError(f"--policy.alt_executor_strategies: distinct strategies of {list(STRATEGY_CHOICES[1:])}, "
+                             f"got {self.alt_executor_strategies!r}")  # fmt: skip
+        if bool(alt) != (self.alt_executor is not None):
+            raise ValueError("--policy.alt_executor_strategies: names the strategies the alt_executor poses; give both "
+                             f"or neither (alt_executor {'set' if self.alt_executor is not None else 'absent'}, "
+                             f"alt_executor_strategies {self.alt_executor_strategies!r})")  # fmt: skip
         if self.generator.input_key != GENERATOR_INPUT:
             raise ValueError(
                 f"--policy.generator.input_key={self.generator.input_key!r}: the unified policy feeds the generator "
@@ -176,15 +189,18 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         obj = self.input_features.get(OBS_OBJECT_POINTCLOUD)
         n = tuple(cloud.shape) if cloud is not None else (max(self.executor.n_points, 16), 3)
         k = tuple(obj.shape) if obj is not None else (256, 3)
-        if not self.executor.input_features:
-            self.executor.input_features = {
-                OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, n),
-                OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (PRIMITIVE_DIM,)),
-                OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (TCP_STATE_DIM,)),
-                OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, k),
-            }
-        if not self.executor.output_features:
-            self.executor.output_features = {ACTION: PolicyFeature(FeatureType.ACTION, (EXECUTOR_ACTION_DIM,))}
+        for ex in (self.executor, self.alt_executor):
+            if ex is None:
+                continue
+            if not ex.input_features:
+                ex.input_features = {
+                    OBS_POINTCLOUD: PolicyFeature(FeatureType.STATE, n),
+                    OBS_PRIMITIVE: PolicyFeature(FeatureType.STATE, (PRIMITIVE_DIM,)),
+                    OBS_TCP_STATE: PolicyFeature(FeatureType.STATE, (TCP_STATE_DIM,)),
+                    OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, k),
+                }
+            if not ex.output_features:
+                ex.output_features = {ACTION: PolicyFeature(FeatureType.ACTION, (EXECUTOR_ACTION_DIM,))}
         if not self.generator.input_features:
             self.generator.input_features = {GENERATOR_INPUT: PolicyFeature(FeatureType.STATE, k)}
         if not self.generator.output_features:

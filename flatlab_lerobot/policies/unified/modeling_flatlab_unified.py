@@ -231,7 +231,7 @@ class _Episode:
         if self.index == len(STRATEGIES[self.strategy]) - 1:  # the final hold: no arm moves
             self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
             return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
-        poses = self.policy.executor.predict_poses(
+        poses = self.policy.executor_for(self.strategy).predict_poses(
             obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
             tta=self.policy.config.executor_tta or None,
         )
@@ -277,6 +277,8 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         self.config = config
         self.generator = FlatLabStrategyPolicy(config.generator)
         self.executor = FlatLabExecutorPolicy(config.executor)
+        # a second executor for some strategies (None: ``executor`` poses every stage)
+        self.alt_executor = FlatLabExecutorPolicy(config.alt_executor) if config.alt_executor is not None else None
         self._experts = ExpertCache(config.control_dt)
         self._episodes: list[_Episode] | None = None
 
@@ -311,6 +313,13 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
     def decisions(self) -> list[list[dict]]:
         """Per batch element, what each stage decided (arms, active probabilities, skipped passes)."""
         return [list(e.log) for e in self._episodes or []]
+
+    def executor_for(self, strategy: str) -> FlatLabExecutorPolicy:
+        """The executor that poses ``strategy``'s stages: ``alt_executor`` for the strategies in
+        ``alt_executor_strategies``, else ``executor``."""
+        if self.alt_executor is not None and strategy in self.config.alt_executor_strategies:
+            return self.alt_executor
+        return self.executor
 
     def _expert(self, i: int, cell: np.ndarray):
         """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell."""
