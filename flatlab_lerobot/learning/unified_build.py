@@ -173,7 +173,7 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
     from flatlab_lerobot.policies.executor.configuration_flatlab_executor import OBS_OBJECT_CLOUD
     from flatlab_lerobot.policies.unified.configuration_flatlab_unified import (
-        CELL_DIM, STATE_DIM, STRATEGY_CHOICES, FlatLabUnifiedConfig,
+        CELL_DIM, STATE_DIM, STRATEGY_CHOICES, FlatLabUnifiedConfig, check_alt_strategies,
     )  # fmt: skip
     from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy
     from flatlab_lerobot.policies.unified.processor_flatlab_unified import make_flatlab_unified_pre_post_processors
@@ -186,13 +186,10 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     ex_cfg = _load_config(ex_dir, "flatlab_executor", "--executor")
     checks = {"generator": check_generator_data(gen_dir), "executor": check_executor_data(ex_dir)}
     alt_strategies = [str(x).strip() for x in alt_strategies if str(x).strip()]
-    if (alt_executor is None) != (not alt_strategies):
-        raise UnifiedBuildError("--alt-executor and --alt-strategies: give both (the second executor and the strategies "
-                                f"it poses) or neither (got {alt_executor!r}, {alt_strategies!r})")  # fmt: skip
-    bad = [x for x in alt_strategies if x not in STRATEGY_CHOICES[1:]] or len(set(alt_strategies)) < len(alt_strategies)
-    if bad:
-        raise UnifiedBuildError(f"--alt-strategies {','.join(alt_strategies)}: distinct strategies of "
-                                f"{list(STRATEGY_CHOICES[1:])}")  # fmt: skip
+    try:
+        check_alt_strategies(alt_strategies, alt_executor is not None, "--alt-strategies (with --alt-executor)")
+    except ValueError as e:
+        raise UnifiedBuildError(str(e)) from e
     alt_dir = alt_cfg = None
     if alt_executor is not None:
         alt_dir = resolve_pretrained(alt_executor, "--alt-executor")
@@ -301,7 +298,7 @@ def main(argv=None) -> int:
     try:
         build(args.generator, args.executor, args.out, args.strategy, args.allow_unverified, args.device,
               object_points=args.object_points, alt_executor=args.alt_executor,
-              alt_strategies=[x for x in args.alt_strategies.split(",") if x.strip()])
+              alt_strategies=args.alt_strategies.split(","))
     except UnifiedBuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -59,6 +59,16 @@ STATE_DIM, CELL_DIM, ACTION_DIM = 16, 7, 16
 GENERATOR_INPUT = "observation.object_pointcloud"  # the generator must read the object cloud
 
 
+def check_alt_strategies(strategies: list[str], has_alt: bool, flag: str = "--policy.alt_executor_strategies") -> None:
+    """Raise (naming ``flag``) unless ``strategies`` are distinct letters of A / B / C, given exactly when a
+    second executor is: the one rule of the config and of ``flatlab unified-build --alt-strategies``."""
+    if len(set(strategies)) < len(strategies) or not set(strategies) <= set(STRATEGY_CHOICES[1:]):
+        raise ValueError(f"{flag}: distinct strategies of {list(STRATEGY_CHOICES[1:])}, got {list(strategies)!r}")
+    if bool(strategies) != has_alt:
+        raise ValueError(f"{flag}: names the strategies the second executor poses; give both or neither "
+                         f"(second executor {'given' if has_alt else 'absent'}, strategies {list(strategies)!r})")
+
+
 @PreTrainedConfig.register_subclass("flatlab_unified")
 @dataclass
 class FlatLabUnifiedConfig(PreTrainedConfig):
@@ -123,14 +133,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.settle_s: must be in [0, 10] s, got {self.settle_s!r}")
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
-        alt = sorted(set(self.alt_executor_strategies))
-        if alt != sorted(self.alt_executor_strategies) or not set(alt) <= set(STRATEGY_CHOICES[1:]):
-            raise ValueError(f"--policy.alt_executor_strategies: distinct strategies of {list(STRATEGY_CHOICES[1:])}, "
-                             f"got {self.alt_executor_strategies!r}")  # fmt: skip
-        if bool(alt) != (self.alt_executor is not None):
-            raise ValueError("--policy.alt_executor_strategies: names the strategies the alt_executor poses; give both "
-                             f"or neither (alt_executor {'set' if self.alt_executor is not None else 'absent'}, "
-                             f"alt_executor_strategies {self.alt_executor_strategies!r})")  # fmt: skip
+        check_alt_strategies(self.alt_executor_strategies, self.alt_executor is not None)
         if self.generator.input_key != GENERATOR_INPUT:
             raise ValueError(
                 f"--policy.generator.input_key={self.generator.input_key!r}: the unified policy feeds the generator "
