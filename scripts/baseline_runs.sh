@@ -2,7 +2,7 @@
 # The end-to-end baselines' measured runs (issue 18), resumable: for each recipe id (act, diffusion,
 # flatlab_dp3) train policies/<id>/cpu.json with the real lerobot-train on the successful demos of
 # outputs/datasets/baselines_cpu (resuming from the last checkpoint when one exists), then score the
-# last checkpoint with `flatlab eval` and write docs/results/eval_<id>.json (eval_dp3.json for flatlab_dp3: the stage names of flatlab paper) (command, seeds, wall, commit).
+# last checkpoint with `flatlab eval` (resuming an interrupted one) and write docs/results/eval_<id>.json (eval_dp3.json for flatlab_dp3: the stage names of flatlab paper) (command, seeds, wall, commit).
 # Usage: scripts/baseline_runs.sh [id ...]   env: STEPS / SAVE_FREQ (override the recipe's), TRIALS (default 1), STAGE=train|eval|all
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,9 +30,13 @@ for id in ${*:-act flatlab_dp3 diffusion}; do
   fi
   if [ "$STAGE" != train ]; then
     ev=outputs/eval/${id}_cpu_t$TRIALS
-    rm -rf "$ev"; t0=$(date +%s)
-    $BIN/flatlab eval --policy $out/checkpoints/last/pretrained_model --trials $TRIALS --seed 1000 --workers 2 "${flags[@]}" --out $ev --quiet --no-plot
-    $BIN/python scripts/eval_record.py --results $ev/results.json --out docs/results/eval_${id#flatlab_}.json --wall $(( $(date +%s) - t0 )) \
+    # an interrupted evaluation resumes (flatlab eval keeps finished trials); one of an older checkpoint restarts
+    [ -f "$ev/run.json" ] && [ "$out/checkpoints/last/pretrained_model/model.safetensors" -nt "$ev/run.json" ] && rm -rf "$ev"
+    prev=$(cat "$ev/wall_s" 2>/dev/null || echo 0); t0=$(date +%s)
+    $BIN/flatlab eval --policy $out/checkpoints/last/pretrained_model --trials $TRIALS --seed 1000 --workers 2 "${flags[@]}" --out $ev --quiet --no-plot \
+      || { echo $(( prev + $(date +%s) - t0 )) > "$ev/wall_s"; echo "eval of $id stopped: rerun to resume"; exit 1; }
+    wall=$(( prev + $(date +%s) - t0 )); echo $wall > "$ev/wall_s"
+    $BIN/python scripts/eval_record.py --results $ev/results.json --out docs/results/eval_${id#flatlab_}.json --wall $wall \
       --train $out/train_wall.json --what "$id cpu recipe, last checkpoint; the 104 benchmark objects x $TRIALS trial(s), seed 1000" \
       --command "scripts/baseline_runs.sh $id  (lerobot-train --config_path=policies/$id/cpu.json --dataset.episodes=<successful>; flatlab eval --policy $out/checkpoints/last/pretrained_model --trials $TRIALS --seed 1000 --workers 2 ${flags[*]})"
   fi
