@@ -171,7 +171,7 @@ def test_edge_profiles_keep_a_box_on_the_top():
 def test_object_pushed_off_the_table_lands_on_the_floor(oid):
     """An object that leaves the table lies on the floor (it fell through a visual-only floor to
     z = -2 km before, which also put -2 km into recorded environment states), and the failure
-    reason says it fell.  The floor is invisible to the cameras and untouchable by the arms."""
+    reason says it fell.  The floor is invisible to the cameras."""
     sim = FlatLabSim(get_object(oid))
     sim.reset(0.0, 0.0, 0.3)
     assert not sim.grasp_status().fallen
@@ -185,7 +185,26 @@ def test_object_pushed_off_the_table_lands_on_the_floor(oid):
     st = sim.grasp_status()
     assert st.fallen and st.shortfall == FailureReason.FELL_OFF_TABLE == "fell_off_table"
     g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor_collision")
-    assert m.geom_group[g] >= 3 and m.geom_contype[g] == 0  # hidden from renders, arms never touch it
+    assert m.geom_group[g] >= 3  # hidden from renders
+
+
+def test_arms_collide_with_the_floor():
+    """The floor is an infinite plane the arms touch too: with a 6 x 6 m slab for objects only, an
+    object swept off the table by an end-to-end baseline rolled off the slab's edge (a clock on its rim,
+    3 m in 6 s) and fell to z = -3 km, and a hand could press through it.  Checked with MuJoCo's own
+    collision filter: the floor plane raised to each hand's height touches that hand."""
+    sim = FlatLabSim(get_object("box_shoe"))
+    sim.reset(0.0, 0.0, 0.0)
+    m, d = sim.model, sim.data
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor_collision")
+    for arm in ("left", "right"):
+        hand = next(b for b in range(m.nbody) if m.body(b).name == f"{arm}/hand")
+        arm_geoms = {i for i in range(m.ngeom) if m.body(m.geom_bodyid[i]).name.startswith(f"{arm}/")}
+        mujoco.mj_forward(m, d)
+        d.geom_xpos[g, 2] = d.xpos[hand][2]  # the floor plane at the hand's origin (a world geom: set in data)
+        mujoco.mj_collision(m, d)
+        pairs = {(int(c.geom1), int(c.geom2)) for c in d.contact[: d.ncon]}
+        assert any(g in p and (p[0] in arm_geoms or p[1] in arm_geoms) for p in pairs), arm
 
 
 def test_bad_scene_inputs_name_file_and_field(tiny_scene_catalog):

@@ -217,7 +217,7 @@ def scene_xml(cell: CellConfig, obj: ObjectSpec | None) -> str:
   <worldbody>
     <light name="sun" pos="0.5 0 2.6" dir="-0.2 0 -1" diffuse="0.5 0.5 0.5" castshadow="false"/>
 {room.floor_walls}
-    <geom name="floor_collision" type="box" size="3 3 0.05" pos="0 0 -0.05" group="3" rgba="0 0 0 0" contype="0" conaffinity="{BIT_OBJECT}"/>
+    <geom name="floor_collision" type="plane" size="0 0 1" group="3" rgba="0 0 0 0" contype="0" conaffinity="{BIT_OBJECT | BIT_LEFT | BIT_RIGHT}"/>
     <body name="table">
 {room.table}
 {legs}
