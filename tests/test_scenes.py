@@ -192,7 +192,7 @@ def test_arms_collide_with_the_floor():
     """The floor is an infinite plane the arms touch too: with a 6 x 6 m slab for objects only, an
     object swept off the table by an end-to-end baseline rolled off the slab's edge (a clock on its rim,
     3 m in 6 s) and fell to z = -3 km, and a hand could press through it.  Checked with MuJoCo's own
-    collision filter: the floor plane raised to each hand's height touches that hand."""
+    collision filter: the floor plane raised to each hand's height touches that arm."""
     sim = FlatLabSim(get_object("box_shoe"))
     sim.reset(0.0, 0.0, 0.0)
     m, d = sim.model, sim.data
