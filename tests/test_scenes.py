@@ -198,7 +198,7 @@ def test_arms_collide_with_the_floor():
     m, d = sim.model, sim.data
     g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor_collision")
     for arm in ("left", "right"):
-        hand = next(b for b in range(m.nbody) if m.body(b).name == f"{arm}/hand")
+        hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{arm}/hand")
         arm_geoms = {i for i in range(m.ngeom) if m.body(m.geom_bodyid[i]).name.startswith(f"{arm}/")}
         mujoco.mj_forward(m, d)
         d.geom_xpos[g, 2] = d.xpos[hand][2]  # the floor plane at the hand's origin (a world geom: set in data)
