@@ -225,3 +225,14 @@ def test_git_commit_of_a_tree_copy_comes_from_the_environment(monkeypatch):
     assert P.git_commit() == {"commit": "0123abc", "dirty": False, "from": "FLATLAB_GIT_COMMIT"}
     monkeypatch.delenv("FLATLAB_GIT_COMMIT")
     assert P.git_commit()["commit"] != "0123abc"
+
+
+def test_provenance_of_an_earlier_run_names_where_its_training_ran():
+    rec = {"command": "flatlab strategy-eval --policy X", "wall_s": 30.0, "machine": "2 CPU cores",
+           "training": {"command": "lerobot-train --policy.device=cuda", "train_wall_s": 740.0,
+                        "device": "cuda (NVIDIA H100 80GB HBM3)"}}  # fmt: skip
+    p = R.provenance(rec)
+    assert p["wall_s"] == 770.0 and p["command"].startswith("lerobot-train")
+    assert p["device"] == "cuda (NVIDIA H100 80GB HBM3) (training); cpu (evaluation)"
+    del rec["training"]["device"]
+    assert R.provenance(rec)["device"] == "cpu"

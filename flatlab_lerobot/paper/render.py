@@ -130,7 +130,9 @@ def provenance(rec: dict | None) -> dict:
         wall = rec["wall_s"]
     sets = rec.get("primitive_sets") or {}
     shared = {json.dumps(sets, sort_keys=True): sum(v.get("wall_s", 0) for v in sets.values())} if sets else {}
-    return {"command": " ; ".join(cmds), "wall_s": wall, "machine": rec.get("machine", ""), "device": "cpu",
+    # a training that ran elsewhere (e.g. on a lent GPU) names its device in the --train-wall JSON
+    device = f"{train['device']} (training); cpu (evaluation)" if train.get("device") else "cpu"
+    return {"command": " ; ".join(cmds), "wall_s": wall, "machine": rec.get("machine", ""), "device": device,
             "commit": (rec.get("git_commit") or rec.get("commit") or "")[:7], "created": "", "pipeline": False,
             "shared": shared}  # fmt: skip
 
