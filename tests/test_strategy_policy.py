@@ -313,6 +313,14 @@ def test_lerobot_train_cli_trains_and_checkpoint_reloads(exported, tmp_path):
     d = json.loads(res.read_text())
     assert d["per_split"]["train"]["n"] == 24 and np.sum(d["confusion_catalog"]) == 24
     assert d["machine"] == "2 CPU cores, no GPU" and d["selection"]["selected"] in {"000004", "000008"}
+    # --average-last: the mean of the last K checkpoints' weights, scored on validation too, loadable by lerobot
+    assert E.main(["--policy", str(out), "--set", str(set_dir), "--average-last", "2", "--out", str(res)]) == 0
+    d = json.loads(res.read_text())
+    assert d["selection"]["averaged_steps"] == ["000004", "000008"] and d["selection"]["selected"] == "average_last2"
+    assert set(d["selection"]["average_score"]) == {"val_acc", "val_ce"} and Path(d["policy"]).name == "pretrained_model"
+    cfg = PreTrainedConfig.from_pretrained(d["policy"])
+    cfg.pretrained_path = Path(d["policy"])
+    assert type(make_policy(cfg, ds_meta=LeRobotDatasetMetadata("local/x", root=root))).__name__ == "FlatLabStrategyPolicy"
 
 
 def test_chamfer_yaw_ignores_placement_yaw_not_shape():
@@ -345,3 +353,42 @@ def test_strategy_set_extras_for_ablations(tmp_path):
     assert rgb.dtype == np.uint8 and 0.2 < (rgb.max(-1) > 0).mean() < 1.0  # the object, on black
     with pytest.raises(SystemExit):
         S.main(["--extras", "depth"])
+
+
+def test_average_checkpoints_means_float_tensors_keeps_the_last_of_the_rest(tmp_path):
+    from safetensors.torch import load_file
+
+    from flatlab_lerobot.learning.checkpoint_average import average_checkpoints
+
+    run = tmp_path / "run"
+    states = []
+    for i, step in enumerate(["000010", "000020", "000030"]):
+        pol = _policy()
+        with torch.no_grad():
+            for j, prm in enumerate(pol.parameters()):
+                prm.fill_(float(i + j))
+        for name, buf in pol.named_buffers():
+            if not buf.is_floating_point():
+                buf.fill_(10 * (i + 1))  # BatchNorm's num_batches_tracked
+        pol.save_pretrained(run / "checkpoints" / step / "pretrained_model")
+        (run / "checkpoints" / step / "pretrained_model" / "train_config.json").write_text(json.dumps({"step": step}))
+        states.append(load_file(str(run / "checkpoints" / step / "pretrained_model" / "model.safetensors")))
+    out, steps = average_checkpoints(run, 2)
+    assert steps == ["000020", "000030"] and out == run / "checkpoints" / "average_last2" / "pretrained_model"
+    avg = load_file(str(out / "model.safetensors"))
+    for k, t in avg.items():
+        if t.is_floating_point():
+            assert torch.allclose(t, (states[1][k] + states[2][k]) / 2), k
+        else:
+            assert torch.equal(t, states[2][k]), k
+    assert any(not t.is_floating_point() for t in avg.values())
+    assert json.loads((out / "train_config.json").read_text()) == {"step": "000030"}  # the last one's files
+    assert not (run / "checkpoints" / "average_last2" / "pretrained_model.tmp").exists()
+    reloaded = FlatLabStrategyPolicy.from_pretrained(str(out))
+    assert torch.allclose(next(reloaded.parameters()), torch.full_like(next(reloaded.parameters()), 1.5))
+    with pytest.raises(ValueError, match="holds 3 saved step"):
+        average_checkpoints(run, 4)
+    with pytest.raises(FileNotFoundError, match="no checkpoints/"):
+        average_checkpoints(tmp_path / "nothing", 2)
+    with pytest.raises(SystemExit):
+        E.main(["--policy", str(run), "--set", str(tmp_path), "--average-last", "0"])

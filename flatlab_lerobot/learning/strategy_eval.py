@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flatlab_lerobot.learning import int_at_least
+
 LETTERS = ("A", "B", "C")
 SPLITS = ("train", "test_alpha", "test_beta")
 MACHINE = "2 CPU cores, no GPU"
@@ -152,8 +154,18 @@ def validation_data(dataset_root: Path, eval_split: float, input_key: str):
     return np.stack(xs).astype(np.float32), np.array(ys)
 
 
-def select_checkpoint(train_dir: Path) -> tuple[Path, dict]:
-    """(best pretrained_model folder, the scores of every checkpoint) by validation accuracy."""
+def _val_score(policy, x: np.ndarray, y: np.ndarray) -> dict:
+    logits = predict(policy, x)
+    m = logits.max(1, keepdims=True)
+    logp = logits - m - np.log(np.exp(logits - m).sum(1, keepdims=True))
+    return {"val_acc": round(float((logits.argmax(1) == y).mean()) * 100, 2),
+            "val_ce": round(float(-logp[np.arange(len(y)), y].mean()), 4)}  # fmt: skip
+
+
+def select_checkpoint(train_dir: Path, average_last: int = 0) -> tuple[Path, dict]:
+    """(best pretrained_model folder, the scores of every checkpoint) by validation accuracy.  With
+    ``average_last`` K > 0 no checkpoint is chosen: the mean of the last K checkpoints' weights
+    (:mod:`.checkpoint_average`) is written beside them and returned, with its validation score too."""
     ckpts = sorted(p for p in (Path(train_dir) / "checkpoints").glob("[0-9]*") if (p / "pretrained_model").is_dir())
     if not ckpts:
         raise FileNotFoundError(f"--policy: {train_dir}/checkpoints has no saved step (lerobot-train output?)")
@@ -161,16 +173,17 @@ def select_checkpoint(train_dir: Path) -> tuple[Path, dict]:
     root, split = tc["dataset"]["root"], float(tc["dataset"].get("eval_split") or 0.0)
     first = load_policy(ckpts[-1] / "pretrained_model")
     x, y = validation_data(Path(root), split, first.config.input_key)
-    scores = {}
-    for c in ckpts:
-        pol = load_policy(c / "pretrained_model")
-        logits = predict(pol, x)
-        logp = logits - np.log(np.exp(logits - logits.max(1, keepdims=True)).sum(1, keepdims=True)) - logits.max(1, keepdims=True)
-        scores[c.name] = {"val_acc": round(float((logits.argmax(1) == y).mean()) * 100, 2),
-                          "val_ce": round(float(-logp[np.arange(len(y)), y].mean()), 4)}  # fmt: skip
+    scores = {c.name: _val_score(load_policy(c / "pretrained_model"), x, y) for c in ckpts}
     best = max(scores, key=lambda k: (scores[k]["val_acc"], -scores[k]["val_ce"], int(k)))
-    return ckpts[[c.name for c in ckpts].index(best)] / "pretrained_model", {
-        "dataset_root": root, "eval_split": split, "n_val": len(y), "scores": scores, "selected": best}
+    sel = {"dataset_root": root, "eval_split": split, "n_val": len(y), "scores": scores, "selected": best}
+    if average_last:
+        from flatlab_lerobot.learning.checkpoint_average import average_checkpoints
+
+        path, steps = average_checkpoints(Path(train_dir), average_last)
+        sel.update(selected=path.parent.name, averaged_steps=steps, average_score=_val_score(load_policy(path), x, y),
+                   best_single=best)  # fmt: skip
+        return path, sel
+    return ckpts[[c.name for c in ckpts].index(best)] / "pretrained_model", sel
 
 
 # ------------------------------------------------------------------------------ ambiguity
@@ -275,6 +288,10 @@ def main(argv=None) -> int:
     ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
                     "copied into the result as 'training'")
     ap.add_argument("--summarize", nargs="+", type=Path, help="result JSONs: print a markdown table and exit")
+    ap.add_argument("--average-last", type=int_at_least(1), default=0, metavar="K",
+                    help="with a lerobot-train output folder: evaluate the mean of its last K checkpoints' weights "
+                    "(written to checkpoints/average_lastK/pretrained_model) instead of the checkpoint chosen on "
+                    "validation")
     ap.add_argument("--tta", type=int, default=None,
                     help="inference passes averaged (flatlab_strategy `tta`; default: the checkpoint's config)")
     args = ap.parse_args(argv)
@@ -299,7 +316,9 @@ def main(argv=None) -> int:
 
             path, sel = args.policy, None
             if (args.policy / "checkpoints").is_dir():
-                path, sel = select_checkpoint(args.policy)
+                path, sel = select_checkpoint(args.policy, args.average_last)
+            elif args.average_last:
+                raise ValueError(f"--average-last needs a lerobot-train output folder; {args.policy} has no checkpoints/")
             policy = load_policy(path)
             if args.tta is not None:
                 policy.config.check_tta(args.tta, f"--tta ({path})")
