@@ -1,6 +1,6 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
 ``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``,
-``primitive-export``, ``executor-metrics``, ``unified-build``, ``desk``, ``paper``."""
+``primitive-export``, ``executor-metrics``, ``average-checkpoints``, ``unified-build``, ``desk``, ``paper``."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ PASSTHROUGH = {
     "bench-collect": "flatlab_lerobot.bench.collect_speed",
     "strategy-export": "flatlab_lerobot.learning.strategy_export",
     "strategy-eval": "flatlab_lerobot.learning.strategy_eval",
+    "average-checkpoints": "flatlab_lerobot.learning.checkpoint_average",
     "unified-build": "flatlab_lerobot.learning.unified_build",
     "desk": "flatlab_lerobot.paper.desk",
     "paper": "flatlab_lerobot.paper.main",
@@ -62,6 +63,7 @@ def main(argv=None) -> int:
         ("bench-collect", "collection throughput benchmark: episodes/hour, overhead vs raw sim+render, memory"),
         ("strategy-export", "a strategy set as a LeRobotDataset v3 for lerobot-train --policy.type=flatlab_strategy"),
         ("strategy-eval", "learned strategy generator: accuracy per split / category, confusion, cloud ambiguity"),
+        ("average-checkpoints", "one pretrained_model from the mean of a lerobot-train run's last K checkpoints"),
         ("unified-build", "one flatlab_unified policy folder from a trained flatlab_strategy and flatlab_executor"),
         ("desk", "the five-object desk (clear_desk) with the scripted expert over layout seeds"),
         ("paper", "the paper's results: run the missing stages of a preset (cached), render docs/results.md"),

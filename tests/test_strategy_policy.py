@@ -388,7 +388,14 @@ def test_average_checkpoints_means_float_tensors_keeps_the_last_of_the_rest(tmp_
     assert torch.allclose(next(reloaded.parameters()), torch.full_like(next(reloaded.parameters()), 1.5))
     with pytest.raises(ValueError, match="holds 3 saved step"):
         average_checkpoints(run, 4)
-    with pytest.raises(FileNotFoundError, match="no checkpoints/"):
+    with pytest.raises(FileNotFoundError, match="no checkpoints/ folder"):
         average_checkpoints(tmp_path / "nothing", 2)
     with pytest.raises(SystemExit):
         E.main(["--policy", str(run), "--set", str(tmp_path), "--average-last", "0"])
+    from flatlab_lerobot.cli import main as flatlab_main
+
+    dest = tmp_path / "avg3"
+    assert flatlab_main(["average-checkpoints", str(run), "--last", "3", "--out", str(dest)]) == 0
+    assert json.loads((dest / "average.json").read_text())["steps"] == ["000010", "000020", "000030"]
+    with pytest.raises(SystemExit):  # a clear error naming the flag, not a traceback
+        flatlab_main(["average-checkpoints", str(run), "--last", "9"])

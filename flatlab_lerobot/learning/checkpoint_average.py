@@ -17,6 +17,7 @@ folder.
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 from pathlib import Path
@@ -33,29 +34,30 @@ def saved_checkpoints(run_dir: Path) -> list[Path]:
     return [p / "pretrained_model" for p in ck]
 
 
-def average_checkpoints(run_dir: Path, last: int, out: Path | None = None) -> tuple[Path, list[str]]:
+def average_checkpoints(run_dir: Path, last: int, out: Path | None = None, flag: str = "--average-last") -> tuple[Path, list[str]]:
     """Average the last ``last`` saved checkpoints of ``run_dir`` into ``out`` (default
-    ``<run_dir>/checkpoints/average_last<K>/pretrained_model``).  Returns (the folder, the steps averaged)."""
+    ``<run_dir>/checkpoints/average_last<K>/pretrained_model``).  Returns (the folder, the steps averaged).
+    ``flag`` names the option in error messages."""
     from safetensors.torch import load_file, save_file
 
     run_dir = Path(run_dir)
     if not (run_dir / "checkpoints").is_dir():
-        raise FileNotFoundError(f"--policy: {run_dir} has no checkpoints/ folder (a lerobot-train output folder?)")
+        raise FileNotFoundError(f"{run_dir}: no checkpoints/ folder (not a lerobot-train output folder)")
     if int(last) < 1:
-        raise ValueError(f"--average-last: must be >= 1, got {last}")
+        raise ValueError(f"{flag}: must be >= 1, got {last}")
     cks = saved_checkpoints(run_dir)
     if len(cks) < last:
-        raise ValueError(f"--average-last {last}: {run_dir}/checkpoints holds {len(cks)} saved step(s)")
+        raise ValueError(f"{flag} {last}: {run_dir}/checkpoints holds {len(cks)} saved step(s)")
     cks = cks[-last:]
     steps = [p.parent.name for p in cks]
     types = {json.loads((p / "config.json").read_text()).get("type") for p in cks}
     if len(types) != 1:
-        raise ValueError(f"--average-last: the checkpoints {steps} are of different policy types {sorted(types)}")
+        raise ValueError(f"{flag}: the checkpoints {steps} are of different policy types {sorted(types)}")
     states = [load_file(str(p / WEIGHTS)) for p in cks]
     keys = set(states[-1])
     for p, s in zip(cks, states, strict=True):
         if set(s) != keys or any(s[k].shape != states[-1][k].shape for k in keys):
-            raise ValueError(f"--average-last: {p} has other tensors than {cks[-1]} (not the same model)")
+            raise ValueError(f"{flag}: {p} has other tensors than {cks[-1]} (not the same model)")
     avg = {}
     for k, last_t in states[-1].items():
         if last_t.is_floating_point():
@@ -73,3 +75,18 @@ def average_checkpoints(run_dir: Path, last: int, out: Path | None = None) -> tu
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp.rename(out)
     return out, steps
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="flatlab average-checkpoints", description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", type=Path, help="a lerobot-train output folder (holding checkpoints/<step>/pretrained_model)")
+    ap.add_argument("--last", type=int, required=True, help="how many of the last saved checkpoints to average")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="pretrained_model folder to write (default: RUN/checkpoints/average_lastK/pretrained_model)")
+    args = ap.parse_args(argv)
+    try:
+        out, steps = average_checkpoints(args.run, args.last, args.out, flag="--last")
+    except (FileNotFoundError, ValueError) as exc:
+        ap.error(str(exc))
+    print(f"averaged steps {', '.join(steps)} -> {out}")
+    return 0
