@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+from flatlab_lerobot.learning.checkpoint_average import saved_checkpoints
 from flatlab_lerobot.learning.strategy_eval import LETTERS, load_policy, metrics, predict, set_inputs
 from flatlab_lerobot.learning.strategy_set import load
 
@@ -41,8 +42,8 @@ def main(argv=None) -> int:
     for run, result in pairs:
         sel = json.loads(result.read_text())["selection"]
         rows, x = {}, None
-        for ck in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
-            pol = load_policy(ck / "pretrained_model")
+        for pm in saved_checkpoints(run):
+            ck, pol = pm.parent, load_policy(pm)
             x = set_inputs(pol, args.set) if x is None else x
             ps = metrics(index, [LETTERS[i] for i in predict(pol, x).argmax(1)])["per_split"]
             rows[ck.name] = {"val_acc": sel["scores"][ck.name]["val_acc"], **{s: ps[s]["acc_catalog"] for s in ps},
