@@ -1,5 +1,5 @@
 """The ``flatlab`` command: ``demo``, ``bench``, ``eval``, ``collect``, ``assets``, ``push``, ``view``,
-``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``,
+``eval-compare``, ``strategy-set``, ``primitive-set``, ``bench-collect``, ``strategy-export``, ``strategy-eval``,
 ``primitive-export``, ``executor-metrics``, ``average-checkpoints``, ``unified-build``, ``desk``, ``paper``."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from flatlab_lerobot.paths import OUTPUTS_DIR
 PASSTHROUGH = {
     "bench": "flatlab_lerobot.bench.speed",
     "eval": "flatlab_lerobot.evaluation.protocol",
+    "eval-compare": "flatlab_lerobot.evaluation.compare",
     "assets": "flatlab_lerobot.assets_cli",
     "collect": "flatlab_lerobot.collect",
     "push": "flatlab_lerobot.collect.hub",
@@ -54,6 +55,7 @@ def main(argv=None) -> int:
     a = sub.add_parser("assets", help="list / validate the catalog, render contact sheets")
     a.add_argument("rest", nargs=argparse.REMAINDER)
     for name, text in (
+        ("eval-compare", "two flatlab eval runs trial by trial: discordant pairs, exact sign test, strategies"),
         ("push", "upload a collected dataset (with a generated dataset card) to the Hugging Face hub"),
         ("view", "open / save a rerun recording of a dataset episode with clouds, EE poses, stages, success"),
         ("strategy-set", "the strategy generator's learning set: normalized object clouds + strategy labels"),
