@@ -20,11 +20,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from collections import Counter
 from pathlib import Path
 
-from flatlab_lerobot.evaluation.protocol import RESULTS_JSONL, RUN_JSON
+from flatlab_lerobot.evaluation.protocol import RESULTS_JSONL, RUN_JSON, _atomic_text
 
 
 class CompareError(SystemExit):
@@ -177,9 +176,7 @@ def main(argv=None) -> int:
     print(markdown(res, f"{a.run_a} ({run_a.get('policy', '?')})", f"{a.run_b} ({run_b.get('policy', '?')})"), end="")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.json.with_name(f".partial_{a.json.name}")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        os.replace(tmp, a.json)
+        _atomic_text(a.json, json.dumps(res, indent=1) + "\n")
         print(f"wrote {a.json}")
     return 0
 
