@@ -286,6 +286,66 @@ def test_alt_executor_poses_its_strategies_and_the_executor_the_others(tiny, tmp
         FlatLabUnifiedConfig(alt_executor_strategies=["A"])  # no alt_executor
 
 
+def test_executor_ensemble_poses_each_stage_by_the_mean_of_its_members(tiny, tmp_path):
+    """``unified-build --executor X Y``: Y's weights under ``executor_members.0.*``, the list of nested configs
+    reloads from config.json, every stage's poses are the mean of X's and Y's predictions (quaternions
+    sign-aligned), and a member that reads other inputs is refused naming the flag and field."""
+    from safetensors.torch import load_file
+
+    from flatlab_lerobot.policies.executor.modeling_flatlab_executor import mean_predictions
+
+    torch.manual_seed(2)
+    member = tmp_path / "member"
+    FlatLabExecutorPolicy(PreTrainedConfig.from_pretrained(tiny["executor"])).save_pretrained(member)  # other weights
+    out = tmp_path / "ens"
+    rec = unified_build.build(tiny["generator"], [tiny["executor"], member], out, allow_unverified=True,
+                              log=lambda *a: None)  # fmt: skip
+    assert "executor_members.0" in rec["train_only_check"] and rec["executor_members.0"] == str(member.resolve())
+    weights, own = load_file(str(out / "model.safetensors")), load_file(str(member / "model.safetensors"))
+    for k, v in own.items():
+        torch.testing.assert_close(weights[f"executor_members.0.{k}"], v, atol=0, rtol=0)
+    pol = _load(out, strategy="B")
+    assert len(pol.executor_members) == 1 and pol.executor_for("B") == (pol.executor, (pol.executor_members[0],))
+    assert pol.executor_for("A")[1] == (pol.executor_members[0],)  # no alt_executor: the ensemble poses every strategy
+    env = _env()
+    obs, _ = env.reset(seed=0)
+    env.close()
+    o = pol.observed(_batch(obs))[0]
+    proprio = np.zeros(C.TCP_STATE_DIM, np.float32)
+    args = (o.cloud, "B", 0, STAGE_SPECS["B"][0].primitive, proprio)
+    single = pol.executor.predict_poses(*args, object_cloud=o.object_cloud)
+    both = pol.executor.predict_poses(*args, object_cloud=o.object_cloud, members=(pol.executor_members[0],))
+    other = pol.executor_members[0].predict_poses(*args, object_cloud=o.object_cloud)
+    for arm in single:
+        p_single, p_other, p_both = single[arm]["start"][0], other[arm]["start"][0], both[arm]["start"][0]
+        assert not np.allclose(p_single, p_other)
+        np.testing.assert_allclose(p_both, (p_single + p_other) / 2, atol=1e-5)
+        np.testing.assert_allclose(both[arm]["active"], (single[arm]["active"] + other[arm]["active"]) / 2, atol=1e-6)
+    # the policy's stages go through the member too
+    seen = []
+    orig = pol.executor_members[0].predict_world
+    pol.executor_members[0].predict_world = lambda batch, tta=None: (seen.append(tta), orig(batch, tta))[1]
+    _rollout([pol], steps=3)
+    assert seen
+    # quaternions: q and -q are one rotation, so their mean is q
+    q = torch.tensor([[0.0, 0.6, 0.0, 0.8]])
+    a = [{"start_quat": q, "start_pos": torch.zeros(1, 3)}]
+    b = [{"start_quat": -q, "start_pos": torch.ones(1, 3)}]
+    m = mean_predictions([a, b])[0]
+    torch.testing.assert_close(m["start_quat"] * torch.sign(m["start_quat"][:, 1:2]), q)
+    torch.testing.assert_close(m["start_pos"], torch.full((1, 3), 0.5))
+    # a member that reads other inputs
+    cfg = PreTrainedConfig.from_pretrained(tiny["executor"])
+    cfg.use_proprio = False
+    odd = tmp_path / "odd"
+    FlatLabExecutorPolicy(cfg).save_pretrained(odd)
+    with pytest.raises(unified_build.UnifiedBuildError, match="--executor .*use_proprio"):
+        unified_build.build(tiny["generator"], [tiny["executor"], odd], tmp_path / "z", allow_unverified=True,
+                            log=lambda *a: None)  # fmt: skip
+    with pytest.raises(ValueError, match="alt_executor_members"):
+        FlatLabUnifiedConfig(alt_executor_members=[cfg])  # no alt_executor
+
+
 def test_config_rejects_bad_values():
     with pytest.raises(ValueError, match="strategy"):
         FlatLabUnifiedConfig(strategy="D")

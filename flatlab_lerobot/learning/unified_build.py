@@ -20,7 +20,9 @@ unchanged), ``policy_preprocessor.json`` / ``policy_postprocessor.json`` -- that
   dataset whose task list names a non-Train object (``check_training_tasks``).
 ``--alt-executor`` adds a second trained executor that poses every stage of the strategies named by
 ``--alt-strategies`` (``--executor`` poses the others); it must read the clouds ``--executor`` reads, and
-it is checked for Train-only data like the first.
+it is checked for Train-only data like the first.  Several folders after ``--executor`` (or
+``--alt-executor``) -- the same recipe trained with other seeds -- make an ensemble: every stage that
+executor poses is the mean of their predictions (``modeling_flatlab_executor.mean_predictions``).
 
 * This builder checks again, from each sub-model's ``train_config.json`` (``lerobot-train`` writes
   it beside the weights): the dataset it names must be on this machine and hold Train objects only --
@@ -162,10 +164,21 @@ def env_flags(settings: dict) -> list[str]:
             "--env.obs_pixels=false"]  # fmt: skip
 
 
-def build(generator: Path, executor: Path, out: Path, strategy: str = "learned", allow_unverified: bool = False,
-          device: str = "cpu", object_points: int | None = None, alt_executor: Path | None = None,
-          alt_strategies: tuple[str, ...] | list[str] = (), log=print) -> dict:  # fmt: skip
-    """Write the artifact; returns the build record (also ``<out>/flatlab_unified_build.json``)."""
+def _paths(x) -> list[Path]:
+    """One path or a sequence of them (an ensemble: the first leads, the rest are its members)."""
+    if x is None:
+        return []
+    return [Path(x)] if isinstance(x, (str, Path)) else [Path(p) for p in x]
+
+
+def build(generator: Path, executor: Path | list[Path], out: Path, strategy: str = "learned",
+          allow_unverified: bool = False, device: str = "cpu", object_points: int | None = None,
+          alt_executor: Path | list[Path] | None = None, alt_strategies: tuple[str, ...] | list[str] = (),
+          log=print) -> dict:  # fmt: skip
+    """Write the artifact; returns the build record (also ``<out>/flatlab_unified_build.json``).
+
+    ``executor`` / ``alt_executor``: one ``pretrained_model`` folder, or several of the same recipe
+    (other seeds): the first is the executor, the others its ensemble members (predictions averaged)."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.utils.constants import ACTION, OBS_STATE
     from safetensors.torch import load_file
@@ -173,7 +186,7 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
     from flatlab_lerobot.policies.executor.configuration_flatlab_executor import OBS_OBJECT_CLOUD
     from flatlab_lerobot.policies.unified.configuration_flatlab_unified import (
-        CELL_DIM, STATE_DIM, STRATEGY_CHOICES, FlatLabUnifiedConfig, check_alt_strategies,
+        CELL_DIM, STATE_DIM, STRATEGY_CHOICES, FlatLabUnifiedConfig, check_alt_strategies, executor_input_mismatch,
     )  # fmt: skip
     from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy
     from flatlab_lerobot.policies.unified.processor_flatlab_unified import make_flatlab_unified_pre_post_processors
@@ -181,20 +194,30 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     t0 = time.perf_counter()
     if strategy not in STRATEGY_CHOICES:
         raise UnifiedBuildError(f"--strategy {strategy!r}: must be one of {list(STRATEGY_CHOICES)}")
-    gen_dir, ex_dir = resolve_pretrained(generator, "--generator"), resolve_pretrained(executor, "--executor")
+    gen_dir = resolve_pretrained(generator, "--generator")
     gen_cfg = _load_config(gen_dir, "flatlab_strategy", "--generator")
-    ex_cfg = _load_config(ex_dir, "flatlab_executor", "--executor")
-    checks = {"generator": check_generator_data(gen_dir), "executor": check_executor_data(ex_dir)}
+    checks = {"generator": check_generator_data(gen_dir)}
+    ex_paths, alt_paths = _paths(executor), _paths(alt_executor)
+    if not ex_paths:
+        raise UnifiedBuildError("--executor: give at least one pretrained_model folder")
     alt_strategies = [str(x).strip() for x in alt_strategies if str(x).strip()]
     try:
-        check_alt_strategies(alt_strategies, alt_executor is not None, "--alt-strategies (with --alt-executor)")
+        check_alt_strategies(alt_strategies, bool(alt_paths), "--alt-strategies (with --alt-executor)")
     except ValueError as e:
         raise UnifiedBuildError(str(e)) from e
-    alt_dir = alt_cfg = None
-    if alt_executor is not None:
-        alt_dir = resolve_pretrained(alt_executor, "--alt-executor")
-        alt_cfg = _load_config(alt_dir, "flatlab_executor", "--alt-executor")
-        checks["alt_executor"] = check_executor_data(alt_dir, "--alt-executor")
+    dirs, cfgs = {}, {}  # "executor", "executor_members.0", ..., "alt_executor", "alt_executor_members.0", ...
+    for name, paths in (("executor", ex_paths), ("alt_executor", alt_paths)):
+        flag = f"--{name.replace('_', '-')}"
+        for i, path in enumerate(paths):
+            key = name if i == 0 else f"{name}_members.{i - 1}"
+            dirs[key] = resolve_pretrained(path, flag)
+            cfgs[key] = _load_config(dirs[key], "flatlab_executor", flag)
+            checks[key] = check_executor_data(dirs[key], flag)
+            why = executor_input_mismatch(cfgs[name], cfgs[key]) if i else ""
+            if why:
+                raise UnifiedBuildError(f"{flag} {dirs[key]}: {why}: an ensemble's members must read the same inputs")
+    ex_dir, ex_cfg = dirs["executor"], cfgs["executor"]
+    alt_dir, alt_cfg = dirs.get("alt_executor"), cfgs.get("alt_executor")
     unverified = {k: v["reason"] for k, v in checks.items() if not v["verified"]}
     if unverified and not allow_unverified:
         raise UnifiedBuildError(
@@ -202,20 +225,20 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
             + "; ".join(f"--{k.replace('_', '-')}: {why}" for k, why in unverified.items())
             + " (--allow-unverified builds anyway and records it)"
         )
-    for sub in (gen_cfg, ex_cfg, alt_cfg):
-        if sub is not None:
-            sub.device, sub.pretrained_path = device, None
+    for sub in (gen_cfg, *cfgs.values()):
+        sub.device, sub.pretrained_path = device, None
     ex_feats = ex_cfg.input_features
     if OBS_POINTCLOUD not in ex_feats:
         raise UnifiedBuildError(f"--executor {ex_dir}: config.json has no input feature {OBS_POINTCLOUD!r}")
-    if alt_cfg is not None:
+    for name, other in cfgs.items():
+        flag = "--alt-executor" if name.startswith("alt") else "--executor"
         for key in (OBS_POINTCLOUD, OBS_OBJECT_CLOUD):
-            a, b = ex_feats.get(key), alt_cfg.input_features.get(key)
+            a, b = ex_feats.get(key), other.input_features.get(key)
             if (a is None) != (b is None) or (a is not None and tuple(a.shape) != tuple(b.shape)):
                 raise UnifiedBuildError(
-                    f"--alt-executor {alt_dir}: config.json input feature {key!r} is "
+                    f"{flag} {dirs[name]}: config.json input feature {key!r} is "
                     f"{None if b is None else tuple(b.shape)}, --executor's {None if a is None else tuple(a.shape)}: "
-                    "both executors must read the same clouds"
+                    "every executor must read the same clouds"
                 )
     n = tuple(ex_feats[OBS_POINTCLOUD].shape)
     obj_ft = ex_feats.get(OBS_OBJECT_CLOUD) or gen_cfg.input_features.get(gen_cfg.input_key)
@@ -227,6 +250,8 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     cfg = FlatLabUnifiedConfig(
         generator=gen_cfg, executor=ex_cfg, strategy=strategy, device=device, push_to_hub=False,
         alt_executor=alt_cfg, alt_executor_strategies=list(alt_strategies),
+        executor_members=[cfgs[f"executor_members.{i}"] for i in range(len(ex_paths) - 1)],
+        alt_executor_members=[cfgs[f"alt_executor_members.{i}"] for i in range(max(len(alt_paths) - 1, 0))],
         input_features={
             OBS_STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
             OBS_CELL: PolicyFeature(FeatureType.STATE, (CELL_DIM,)),
@@ -240,9 +265,8 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
         cfg.control_dt = settings["control_dt"]
     policy = FlatLabUnifiedPolicy(cfg)
     policy.generator.load_state_dict(load_file(str(gen_dir / "model.safetensors")), strict=True)
-    policy.executor.load_state_dict(load_file(str(ex_dir / "model.safetensors")), strict=True)
-    if alt_dir is not None:
-        policy.alt_executor.load_state_dict(load_file(str(alt_dir / "model.safetensors")), strict=True)
+    for name, d in dirs.items():
+        policy.get_submodule(name).load_state_dict(load_file(str(d / "model.safetensors")), strict=True)
     policy.eval()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -257,6 +281,7 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
         "generator": str(gen_dir.resolve()),
         "executor": str(ex_dir.resolve()),
         **({"alt_executor": str(alt_dir.resolve()), "alt_strategies": list(alt_strategies)} if alt_dir else {}),
+        **{k: str(d.resolve()) for k, d in dirs.items() if "_members." in k},
         "train_only_check": checks,
         "allow_unverified": bool(unverified),
         "clouds": settings,
@@ -267,6 +292,8 @@ def build(generator: Path, executor: Path, out: Path, strategy: str = "learned",
     for k_, why in unverified.items():
         log(f"[unified-build] WARNING: --{k_.replace('_', '-')}: Train-only training data UNVERIFIED ({why})")
     alt = f", strategies {','.join(alt_strategies)} posed by --alt-executor" if alt_dir else ""
+    if len(ex_paths) > 1 or len(alt_paths) > 1:
+        alt += f", ensembles of {len(ex_paths)} / {len(alt_paths)} executors"
     log(f"[unified-build] {out}: flatlab_unified (strategy={strategy}{alt}); evaluate with\n"
         f"  flatlab eval --policy {out} --splits train,test_alpha,test_beta {' '.join(flags)}\n"
         f"  lerobot-eval --policy.path={out} --env.type=flatlab --env.object_id=<id> {' '.join(flags)}")  # fmt: skip
@@ -280,7 +307,9 @@ def main(argv=None) -> int:
         "flatlab_strategy generator and a trained flatlab_executor.",
     )
     ap.add_argument("--generator", type=Path, required=True, help="the strategy generator's pretrained_model folder")
-    ap.add_argument("--executor", type=Path, required=True, help="the executor's pretrained_model folder")
+    ap.add_argument("--executor", type=Path, nargs="+", required=True,
+                    help="the executor's pretrained_model folder; several (the same recipe, other seeds): an ensemble "
+                    "whose poses are the mean of their predictions")
     ap.add_argument("--out", type=Path, default=OUTPUTS_DIR / "unified" / "pretrained_model", help="artifact folder")
     ap.add_argument("--strategy", default="learned", choices=("learned", "A", "B", "C"),
                     help="learned (the generator chooses) or fixed: A = learned Slide, B = learned Lift baseline")  # fmt: skip
@@ -290,8 +319,9 @@ def main(argv=None) -> int:
     ap.add_argument("--object-points", type=int, default=None,
                     help="the env's n_object_points the artifact expects (default: the executor's); more points than "
                     "the generator's generator_cloud_points (2048) are farthest-point resampled to it, as the strategy set is")
-    ap.add_argument("--alt-executor", type=Path, default=None,
-                    help="a second trained flatlab_executor that poses the stages of --alt-strategies (same clouds)")
+    ap.add_argument("--alt-executor", type=Path, nargs="+", default=None,
+                    help="a second trained flatlab_executor that poses the stages of --alt-strategies (same clouds); "
+                    "several: an ensemble, as --executor")
     ap.add_argument("--alt-strategies", default="",
                     help="comma-separated strategies (A, B, C) posed by --alt-executor, e.g. A,C")
     args = ap.parse_args(argv)

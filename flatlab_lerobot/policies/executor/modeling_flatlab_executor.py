@@ -79,6 +79,27 @@ def geodesic_loss(q_hat: Tensor, q: Tensor) -> Tensor:
     return (geodesic_angle(q_hat, q) ** 2).mean()
 
 
+def mean_predictions(passes: list[list[dict[str, Tensor]]]) -> list[dict[str, Tensor]]:
+    """The mean of several world-frame predictions (``predict_world`` outputs: per arm a dict of (B, .)
+    tensors): test-time augmentation passes, or the members of an ensemble.  Quaternions: q and -q are
+    one rotation, so each is sign-aligned to the first before the mean, which is then normalized."""
+    if len(passes) == 1:
+        return passes[0]
+    out = []
+    for i in range(len(passes[0])):
+        arm = {}
+        for key in passes[0][i]:
+            v = torch.stack([p[i][key] for p in passes])  # (k, B, .)
+            if key.endswith("quat"):
+                v = v * torch.where((v * v[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+                m = v.mean(0)
+                arm[key] = canonical(m / m.norm(dim=-1, keepdim=True).clamp(min=1e-12))
+            else:
+                arm[key] = v.mean(0)
+        out.append(arm)
+    return out
+
+
 class SceneFrame:
     """The model frame of a batch: ``x' = s * Rz(phi) (x - c)`` with c the cloud mean (paper App. B:
     clouds normalised to zero mean), s and phi the augmentation (1 and 0 at eval).  Positions and
@@ -331,21 +352,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             passes = [self._world(batch, j, k) for j in range(k)]
         finally:
             self.train(was)
-        if k == 1:
-            return passes[0]
-        out = []
-        for i in range(len(passes[0])):
-            arm = {}
-            for key in passes[0][i]:
-                v = torch.stack([p[i][key] for p in passes])  # (k, B, .)
-                if key.endswith("quat"):  # q and -q are one rotation: align to the first pass, then mean
-                    v = v * torch.where((v * v[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-                    m = v.mean(0)
-                    arm[key] = canonical(m / m.norm(dim=-1, keepdim=True).clamp(min=1e-12))
-                else:
-                    arm[key] = v.mean(0)
-            out.append(arm)
-        return out
+        return mean_predictions(passes)
 
     def _world(self, batch: dict[str, Tensor], j: int, k: int) -> list[dict[str, Tensor]]:
         """One inference pass (``j`` of ``k``) in world coordinates."""
@@ -384,7 +391,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         return self.predict_action_chunk(batch)[:, 0]
 
     @torch.no_grad()
-    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None, object_cloud=None, tta=None) -> dict[str, dict]:
+    def predict_poses(self, scene_cloud, strategy, stage_index, primitive, proprio=None, object_cloud=None, tta=None,
+                      members: tuple[FlatLabExecutorPolicy, ...] = ()) -> dict[str, dict]:  # fmt: skip
         """The unified policy's call: one decision.
 
         scene_cloud: (N, 3) or (B, N, 3) world-frame scene cloud (crop + cameras as the primitive set).
@@ -395,6 +403,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         object_cloud: (K, 3) / (B, K, 3) world-frame segmented object cloud (env obs
         ``object_pointcloud``); required when ``config.frame_center`` is "object" / "object_table", ignored otherwise.
         tta: test-time augmentation passes (default ``config.tta``; see ``predict_world``).
+        members: further executors that read the same inputs (an ensemble: the same recipe trained with
+        other seeds); the poses are the mean of this executor's and theirs (``mean_predictions``).
         Returns ``{arm: {"start": (pos (B,3), quat (B,4)), "end": (...), "gripper": ((B,), (B,)),
         "active": (B,)}}`` as numpy arrays (B=1 kept); ``active`` is the predicted probability that the
         primitive commands the arm (A's pushing / grasping arm depends on where the object is)."""
@@ -422,9 +432,15 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             if object_cloud is None:
                 raise ValueError(f"predict_poses: object_cloud (K, 3) is required (config.frame_center={self.config.frame_center!r})")
             batch[OBS_OBJECT_CLOUD] = torch.as_tensor(np.array(object_cloud, np.float32), device=dev).reshape(B, -1, 3)
-        out = {}
-        for arm, p in zip(ARMS, self.predict_world(batch, tta)):
-            n = {k: v.cpu().numpy() for k, v in p.items()}
-            out[arm] = {"start": (n["start_pos"], n["start_quat"]), "end": (n["end_pos"], n["end_quat"]),
-                        "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0]), "active": n["active"][:, 0]}  # fmt: skip
-        return out
+        members = [self, *members]
+        return pose_dict(mean_predictions([m.predict_world(batch, tta) for m in members]))
+
+
+def pose_dict(per_arm: list[dict[str, Tensor]]) -> dict[str, dict]:
+    """``predict_world``'s per-arm tensors as ``predict_poses`` returns them: numpy, keyed by arm."""
+    out = {}
+    for arm, p in zip(ARMS, per_arm):
+        n = {k: v.cpu().numpy() for k, v in p.items()}
+        out[arm] = {"start": (n["start_pos"], n["start_quat"]), "end": (n["end_pos"], n["end_quat"]),
+                    "gripper": (n["gripper_start"][:, 0], n["gripper_end"][:, 0]), "active": n["active"][:, 0]}  # fmt: skip
+    return out

@@ -69,6 +69,15 @@ def check_alt_strategies(strategies: list[str], has_alt: bool, flag: str = "--po
                          f"(second executor {'given' if has_alt else 'absent'}, strategies {list(strategies)!r})")
 
 
+def executor_input_mismatch(a: FlatLabExecutorConfig, b: FlatLabExecutorConfig) -> str:
+    """Why executor ``b`` cannot share ``a``'s input batch ("" when it can): the fields that decide which
+    inputs ``predict_poses`` builds, and the cloud sizes."""
+    for f in ("use_proprio", "frame_center", "n_points", "n_object_points"):
+        if getattr(a, f) != getattr(b, f):
+            return f"{f} is {getattr(b, f)!r}, the executor's {getattr(a, f)!r}"
+    return ""
+
+
 @PreTrainedConfig.register_subclass("flatlab_unified")
 @dataclass
 class FlatLabUnifiedConfig(PreTrainedConfig):
@@ -80,6 +89,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # ``alt_executor.*`` entries of ``model.safetensors``.  It must read the same clouds as ``executor``.
     alt_executor: FlatLabExecutorConfig | None = None
     alt_executor_strategies: list[str] = field(default_factory=list)
+    # an ensemble: further executors (the same recipe trained with other seeds; `flatlab unified-build
+    # --executor DIR DIR ...`) whose predictions are averaged with ``executor``'s at every stage it poses;
+    # weights ``executor_members.<i>.*``.  ``alt_executor_members`` likewise for ``alt_executor``.
+    executor_members: list[FlatLabExecutorConfig] = field(default_factory=list)
+    alt_executor_members: list[FlatLabExecutorConfig] = field(default_factory=list)
     # learned: the generator picks the strategy per episode; A / B / C: fixed (A = learned Slide, B = learned Lift)
     strategy: str = "learned"
     control_dt: float = 0.1  # s: must match the env's 1/fps
@@ -134,6 +148,15 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
         check_alt_strategies(self.alt_executor_strategies, self.alt_executor is not None)
+        if self.alt_executor_members and self.alt_executor is None:
+            raise ValueError("--policy.alt_executor_members: given without --policy.alt_executor (members average "
+                             "with the executor they belong to)")
+        for name, lead, members in (("executor_members", self.executor, self.executor_members),
+                                    ("alt_executor_members", self.alt_executor, self.alt_executor_members)):  # fmt: skip
+            for i, m in enumerate(members):
+                why = executor_input_mismatch(lead, m)
+                if why:
+                    raise ValueError(f"--policy.{name}[{i}]: {why}; an ensemble's members must read the same inputs")
         if self.generator.input_key != GENERATOR_INPUT:
             raise ValueError(
                 f"--policy.generator.input_key={self.generator.input_key!r}: the unified policy feeds the generator "
@@ -192,7 +215,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         obj = self.input_features.get(OBS_OBJECT_POINTCLOUD)
         n = tuple(cloud.shape) if cloud is not None else (max(self.executor.n_points, 16), 3)
         k = tuple(obj.shape) if obj is not None else (256, 3)
-        for ex in (self.executor, self.alt_executor):
+        for ex in (self.executor, self.alt_executor, *self.executor_members, *self.alt_executor_members):
             if ex is None:
                 continue
             if not ex.input_features:

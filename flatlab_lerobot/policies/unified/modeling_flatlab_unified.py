@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import OBS_STATE
-from torch import Tensor
+from torch import Tensor, nn
 
 from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
 from flatlab_lerobot.policies import fps_indices
@@ -231,9 +231,10 @@ class _Episode:
         if self.index == len(STRATEGIES[self.strategy]) - 1:  # the final hold: no arm moves
             self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
             return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
-        poses = self.policy.executor_for(self.strategy).predict_poses(
+        executor, members = self.policy.executor_for(self.strategy)
+        poses = executor.predict_poses(
             obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
-            tta=self.policy.config.executor_tta or None,
+            tta=self.policy.config.executor_tta or None, members=members,
         )
         thr = self.policy.config.active_threshold
         prob = {a: float(poses[a]["active"][0]) for a in ARMS}
@@ -279,6 +280,9 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         self.executor = FlatLabExecutorPolicy(config.executor)
         # a second executor for some strategies (None: ``executor`` poses every stage)
         self.alt_executor = FlatLabExecutorPolicy(config.alt_executor) if config.alt_executor is not None else None
+        # ensemble members averaged with executor / alt_executor (empty: a single executor each)
+        self.executor_members = nn.ModuleList(FlatLabExecutorPolicy(c) for c in config.executor_members)
+        self.alt_executor_members = nn.ModuleList(FlatLabExecutorPolicy(c) for c in config.alt_executor_members)
         self._experts = ExpertCache(config.control_dt)
         self._episodes: list[_Episode] | None = None
 
@@ -314,12 +318,12 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         """Per batch element, what each stage decided (arms, active probabilities, skipped passes)."""
         return [list(e.log) for e in self._episodes or []]
 
-    def executor_for(self, strategy: str) -> FlatLabExecutorPolicy:
-        """The executor that poses ``strategy``'s stages: ``alt_executor`` for the strategies in
-        ``alt_executor_strategies``, else ``executor``."""
+    def executor_for(self, strategy: str) -> tuple[FlatLabExecutorPolicy, tuple[FlatLabExecutorPolicy, ...]]:
+        """The executor that poses ``strategy``'s stages and its ensemble members: ``alt_executor`` for the
+        strategies in ``alt_executor_strategies``, else ``executor``."""
         if self.alt_executor is not None and strategy in self.config.alt_executor_strategies:
-            return self.alt_executor
-        return self.executor
+            return self.alt_executor, tuple(self.alt_executor_members)
+        return self.executor, tuple(self.executor_members)
 
     def _expert(self, i: int, cell: np.ndarray):
         """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell."""
