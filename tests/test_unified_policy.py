@@ -188,10 +188,10 @@ def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     calls = []
     orig = pol.executor.predict_poses
 
-    def spy(cloud, strategy, index, primitive, proprio, object_cloud=None, tta=None):
+    def spy(cloud, strategy, index, primitive, proprio, object_cloud=None, tta=None, members=()):
         calls.append({"cloud": np.array(cloud), "obj": np.array(object_cloud), "strategy": strategy, "index": index,
-                      "primitive": primitive, "proprio": np.array(proprio), "tta": tta})  # fmt: skip
-        return orig(cloud, strategy, index, primitive, proprio, object_cloud=object_cloud, tta=tta)
+                      "primitive": primitive, "proprio": np.array(proprio), "tta": tta, "members": members})  # fmt: skip
+        return orig(cloud, strategy, index, primitive, proprio, object_cloud=object_cloud, tta=tta, members=members)
 
     pol.executor.predict_poses = spy
     env = _env()
@@ -218,6 +218,7 @@ def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     assert [c["index"] for c in calls] == list(range(len(calls))) and len(calls) >= 2
     assert all(c["strategy"] == "B" and c["primitive"] == STAGE_SPECS["B"][c["index"]].primitive for c in calls)
     assert all(c["tta"] is None for c in calls)  # executor_tta=0: the executor's own config (1 pass)
+    assert all(c["members"] == () for c in calls)  # one executor, no ensemble
 
 
 def test_executor_tta_reaches_every_stage_call(tiny):
