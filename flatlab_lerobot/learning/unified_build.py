@@ -164,6 +164,12 @@ def env_flags(settings: dict) -> list[str]:
             "--env.obs_pixels=false"]  # fmt: skip
 
 
+def _flag(key: str) -> str:
+    """The command-line flag behind a sub-model key: "executor_members.0" -> "--executor (member 1)"."""
+    name, _, i = key.partition("_members.")
+    return f"--{name.replace('_', '-')}" + (f" (member {int(i) + 1})" if i else "")
+
+
 def _paths(x) -> list[Path]:
     """One path or a sequence of them (an ensemble: the first leads, the rest are its members)."""
     if x is None:
@@ -222,7 +228,7 @@ def build(generator: Path, executor: Path | list[Path], out: Path, strategy: str
     if unverified and not allow_unverified:
         raise UnifiedBuildError(
             "cannot check that these sub-models were trained on Train objects only: "
-            + "; ".join(f"--{k.replace('_', '-')}: {why}" for k, why in unverified.items())
+            + "; ".join(f"{_flag(k)}: {why}" for k, why in unverified.items())
             + " (--allow-unverified builds anyway and records it)"
         )
     for sub in (gen_cfg, *cfgs.values()):
@@ -290,7 +296,7 @@ def build(generator: Path, executor: Path | list[Path], out: Path, strategy: str
     }
     (out / BUILD_RECORD).write_text(json.dumps(record, indent=1, default=str))
     for k_, why in unverified.items():
-        log(f"[unified-build] WARNING: --{k_.replace('_', '-')}: Train-only training data UNVERIFIED ({why})")
+        log(f"[unified-build] WARNING: {_flag(k_)}: Train-only training data UNVERIFIED ({why})")
     alt = f", strategies {','.join(alt_strategies)} posed by --alt-executor" if alt_dir else ""
     if len(ex_paths) > 1 or len(alt_paths) > 1:
         alt += f", ensembles of {len(ex_paths)} / {len(alt_paths)} executors"
