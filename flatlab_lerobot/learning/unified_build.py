@@ -256,8 +256,8 @@ def build(generator: Path, executor: Path | list[Path], out: Path, strategy: str
     cfg = FlatLabUnifiedConfig(
         generator=gen_cfg, executor=ex_cfg, strategy=strategy, device=device, push_to_hub=False,
         alt_executor=alt_cfg, alt_executor_strategies=list(alt_strategies),
-        executor_members=[cfgs[f"executor_members.{i}"] for i in range(len(ex_paths) - 1)],
-        alt_executor_members=[cfgs[f"alt_executor_members.{i}"] for i in range(max(len(alt_paths) - 1, 0))],
+        executor_members=[c for k, c in cfgs.items() if k.startswith("executor_members.")],  # in flag order
+        alt_executor_members=[c for k, c in cfgs.items() if k.startswith("alt_executor_members.")],
         input_features={
             OBS_STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
             OBS_CELL: PolicyFeature(FeatureType.STATE, (CELL_DIM,)),
