@@ -146,6 +146,13 @@ def test_cloud_crop_fps_and_scaling():
     assert torch.equal(prepare_clouds(outside, 8, lo, hi), torch.zeros(2, 8, 3))
     # (B, T, N, 3) batches keep their leading dims
     assert prepare_clouds(_clouds(2, 2), 32, lo, hi).shape == (2, 2, 32, 3)
+    # a cloud the env padded by repeating its points (the cameras saw 40) is sampled as those 40: each once,
+    # then cycled -- not the 40 and then 24 copies of one of them
+    repeated = torch.cat([inside[:, :40]] * 8, dim=1)
+    out = prepare_clouds(repeated, 64, lo, hi)
+    assert torch.equal(out, prepare_clouds(inside[:, :40], 64, lo, hi))
+    _, counts = torch.unique(out[0], dim=0, return_counts=True)
+    assert len(counts) == 40 and counts.max() == 2
 
 
 def test_forward_trains():

@@ -103,8 +103,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # an arm is commanded by a stage when the executor's "active" probability exceeds this; when no
     # arm does, the more probable one (every trained sample commands at least one moving arm)
     active_threshold: float = 0.5
-    # the observed object cloud is farthest-point resampled to this many points before the generator
-    # reads it, as the strategy set's clouds are (FPS of all object pixels to 2048); 0: fed as observed
+    # the observed object cloud's distinct seen points are farthest-point resampled to this many before the
+    # generator reads them, as the strategy set's clouds are (FPS of all object pixels to 2048); 0: all of them
     generator_cloud_points: int = 2048
     # the executor's test-time augmentation passes per stage (flatlab_executor `tta`: k rotations about z
     # and point subsets, predictions averaged); 0: the executor config's own value
