@@ -258,6 +258,30 @@ def test_generator_reads_each_seen_object_point_once(tiny):
     assert fed[2].shape == (48, 3) and len(torch.unique(fed[2], dim=0)) == 48 and (fed[2].abs().sum(1) > 0).all()
 
 
+def test_first_observation_script_gives_the_strategy_the_episode_chooses(tiny, tmp_path, monkeypatch):
+    """scripts/generator_first_obs.py (column S without running the episodes) resets the env as the trial with
+    that seed does and asks the policy's own choose_strategy: the episode's choice, seed by seed."""
+    sys.path.insert(0, str(Path(__file__).parents[1] / "scripts"))
+    import generator_first_obs
+
+    seen = []
+    orig = FlatLabUnifiedPolicy.choose_strategy
+    monkeypatch.setattr(FlatLabUnifiedPolicy, "choose_strategy", lambda self, c: (seen.append(np.array(c)), orig(self, c))[1])
+    out = tmp_path / "first.json"
+    args = ["--policy", str(tiny["artifact"]), "--objects", OBJECT, "--seeds", "0-2", "--image-size", "32",
+            "--n-points", str(N), "--n-object-points", str(K), "--out", str(out)]  # fmt: skip
+    assert generator_first_obs.main(args) == 0
+    choices = json.loads(out.read_text())["choices"]
+    assert [r["seed"] for r in choices] == [0, 1, 2] and len(seen) == 3
+    pol = _load(tiny["artifact"])
+    for i, row in enumerate(choices):
+        _rollout([pol], steps=1, seed=row["seed"])
+        assert row["strategy"] == pol.strategies[0] and np.array_equal(seen[3 + i], seen[i])  # the same cloud
+    assert not np.array_equal(seen[0], seen[1])  # another seed, another placement
+    with pytest.raises(SystemExit, match="--splits"):
+        generator_first_obs.main(["--policy", str(tiny["artifact"]), "--splits", "nope"])
+
+
 @pytest.mark.parametrize("strategy", ["A", "B"])
 def test_fixed_strategy_is_the_learned_slide_or_lift_baseline(tiny, tmp_path, strategy):
     pol = _load(tiny["artifact"], strategy=strategy)
