@@ -18,16 +18,7 @@ from pathlib import Path
 
 from flatlab_lerobot.catalog import benchmark_objects
 from flatlab_lerobot.env import FlatLabEnv
-
-
-def seeds_arg(text: str) -> list[int]:
-    try:
-        if "-" in text:
-            lo, hi = (int(v) for v in text.split("-"))
-            return list(range(lo, hi + 1))
-        return [int(v) for v in text.split(",")]
-    except ValueError:
-        raise SystemExit(f"--seeds {text!r}: want FIRST-LAST or a comma-separated list of integers") from None
+from flatlab_lerobot.paper.desk import parse_seeds
 
 
 def main(argv=None) -> int:
@@ -35,7 +26,7 @@ def main(argv=None) -> int:
     ap.add_argument("--policy", required=True, type=Path, help="flatlab_unified pretrained_model folder")
     ap.add_argument("--splits", default="train,test_alpha,test_beta")
     ap.add_argument("--objects", default="", help="comma-separated object ids instead of --splits")
-    ap.add_argument("--seeds", default="1000-1004")
+    ap.add_argument("--seeds", default="1000-1004", help="episode seeds: '1000-1004', '1000,1003'")
     ap.add_argument("--cameras", default="front,top,left,right", help="the env's pointcloud_cameras")
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--n-points", type=int, default=4096, help="the env's n_points (its draws come first)")
@@ -43,6 +34,10 @@ def main(argv=None) -> int:
     ap.add_argument("--generator-tta", type=int, default=0, help="the policy's generator_tta (0: its own)")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
+    try:
+        seeds = parse_seeds(a.seeds)
+    except ValueError:
+        ap.error(f"--seeds {a.seeds!r}: want e.g. 1000-1004 or 1000,1003")
     from lerobot.configs.policies import PreTrainedConfig
 
     import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy types
@@ -56,7 +51,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"--policy {a.policy}: config.json type is {cfg.type!r}, want 'flatlab_unified'")
     policy = FlatLabUnifiedPolicy.from_pretrained(a.policy, config=cfg)
     policy.eval()
-    seeds, rows, t0 = seeds_arg(a.seeds), [], time.perf_counter()
+    rows, t0 = [], time.perf_counter()
     if a.objects:
         try:
             groups = {"objects": [get_object(o.strip()) for o in a.objects.split(",") if o.strip()]}

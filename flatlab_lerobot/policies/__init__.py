@@ -10,6 +10,13 @@ def identity_normalization() -> dict[str, NormalizationMode]:
     return {t: NormalizationMode.IDENTITY for t in ("VISUAL", "STATE", "ENV", "ACTION")}
 
 
+def seen_points(cloud: np.ndarray) -> np.ndarray:
+    """The seen rows (M, 3) of an env cloud (K, 3), as float64: all-zero rows are unseen (the env's padding when
+    the cameras see nothing)."""
+    pts = np.asarray(cloud, float).reshape(-1, 3)
+    return pts[np.abs(pts).sum(1) > 0]
+
+
 def distinct_indices(points: np.ndarray) -> np.ndarray:
     """Indices of the distinct rows of ``points`` (K, 3), each at its first occurrence, in cloud order.  The
     env repeats its points up to a fixed count when the cameras see fewer (``sim.cameras.sample``)."""

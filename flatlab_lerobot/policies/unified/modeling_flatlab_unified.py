@@ -47,7 +47,7 @@ from lerobot.utils.constants import OBS_STATE
 from torch import Tensor, nn
 
 from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
-from flatlab_lerobot.policies import distinct_indices, fps_indices
+from flatlab_lerobot.policies import distinct_indices, fps_indices, seen_points
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
@@ -83,8 +83,7 @@ class Observed:
     @property
     def object_points(self) -> np.ndarray:
         """The seen object points (M, 3) (all-zero rows are unseen)."""
-        pts = np.asarray(self.object_cloud, float).reshape(-1, 3)
-        return pts[np.abs(pts).sum(1) > 0]
+        return seen_points(self.object_cloud)
 
     @property
     def q14(self) -> np.ndarray:
@@ -337,8 +336,7 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         samples of the object's pixels.  The repeats would shift the cloud's mean, the centre of the
         generator's normalization (at 128 px, Train S 73 % with them, 97 % without: docs/unified.md)."""
         dev = next(self.generator.parameters()).device
-        pts = np.asarray(object_cloud, np.float64).reshape(-1, 3)
-        seen = pts[np.abs(pts).sum(1) > 0]
+        pts, seen = np.asarray(object_cloud, np.float64).reshape(-1, 3), seen_points(object_cloud)
         if len(seen):
             pts = seen[distinct_indices(seen)]
         n = self.config.generator_cloud_points

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.strategies.a_push_to_edge import (
     A_PASSES,
     A_PRESS_DEPTH,
@@ -147,8 +148,7 @@ def apply_heights(p0: np.ndarray, p1: np.ndarray, z0: float | None, z1: float | 
 def object_footprint_x(object_cloud: np.ndarray) -> tuple[float, float] | None:
     """(largest x, extent along x) of the seen object points (all-zero rows are unseen); None if none.
     What the expert's push-pass rules read from the privileged footprint."""
-    pts = np.asarray(object_cloud, float).reshape(-1, 3)
-    pts = pts[np.abs(pts).sum(1) > 0]
+    pts = seen_points(object_cloud)
     if not len(pts):
         return None
     return float(pts[:, 0].max()), float(pts[:, 0].max() - pts[:, 0].min())
