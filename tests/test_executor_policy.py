@@ -566,3 +566,15 @@ def test_tta_one_pass_is_the_plain_prediction_and_k_passes_average_rotated_frame
         assert ((arm["active"] >= 0) & (arm["active"] <= 1)).all()
     with pytest.raises(ValueError, match="--policy.tta"):
         _policy(tta=0)
+
+
+def test_tta_turns_stay_within_the_trained_rotations():
+    """A model trained with rotations of at most x degrees about z is averaged over turns in [-x, x]
+    (a turn it never saw would be out of its training distribution); 180: the full circle as before."""
+    full = _policy(n_points=32)
+    assert [full.tta_turn(j, 4) for j in range(4)] == pytest.approx([0, math.pi / 2, math.pi, 3 * math.pi / 2])
+    small = _policy(n_points=32, aug_rot_z_deg=15.0)
+    assert small.tta_turn(0, 1) == 0.0
+    assert [math.degrees(small.tta_turn(j, 3)) for j in range(3)] == pytest.approx([-15.0, 0.0, 15.0])
+    assert max(abs(math.degrees(small.tta_turn(j, 8))) for j in range(8)) == pytest.approx(15.0)
+    assert _policy(n_points=32, aug_rot_z_deg=15.0, augment=False).tta_turn(2, 3) == 0.0

@@ -141,7 +141,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     aug_jitter_std: float = 0.002  # m
     aug_rot_z_deg: float = 180.0  # uniform in [-x, x] about the vertical axis through the cloud centre
     # test-time augmentation (inference only): average the world-frame predictions over this many
-    # model frames, rotated about z by 360/k degree steps, each on a different subset of the cloud's
+    # model frames, rotated about z by 360/k degree steps (a model trained with aug_rot_z_deg < 180: k
+    # turns spread evenly over [-aug_rot_z_deg, aug_rot_z_deg]), each on a different subset of the cloud's
     # points (1: one pass, the paper's).  Positions, grippers and "active" are averaged, quaternions
     # sign-aligned and averaged.  Rotation about z is an augmentation the model was trained on.
     tta: int = 1

@@ -343,8 +343,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
     def predict_world(self, batch: dict[str, Tensor], tta: int | None = None) -> list[dict[str, Tensor]]:
         """Per arm (``ARMS`` order) dict of world-frame predictions, tensors (B, .).
 
-        ``tta`` (default ``config.tta``): k > 1 averages k passes, pass j in a model frame rotated by
-        2*pi*j/k about z and on the cloud's points rolled by j*n_points (another subset of them)."""
+        ``tta`` (default ``config.tta``): k > 1 averages k passes, pass j in a model frame rotated about z
+        by :meth:`tta_turn` and on the cloud's points rolled by j*n_points (another subset of them)."""
         k = int(self.config.tta if tta is None else tta)
         was = self.training
         self.eval()
@@ -354,6 +354,15 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             self.train(was)
         return mean_predictions(passes)
 
+    def tta_turn(self, j: int, k: int) -> float:
+        """Pass ``j`` of ``k``'s extra rotation about z (rad), within the rotations the model was trained
+        under: 2*pi*j/k when it saw every turn (``aug_rot_z_deg`` 180), else ``k`` turns evenly spread over
+        [-aug_rot_z_deg, aug_rot_z_deg] (one pass: no turn)."""
+        a = float(self.config.aug_rot_z_deg) if self.config.augment else 0.0
+        if a >= 180.0:
+            return 2 * math.pi * j / k
+        return 0.0 if k == 1 else math.radians(a * (2.0 * j / (k - 1) - 1.0))
+
     def _world(self, batch: dict[str, Tensor], j: int, k: int) -> list[dict[str, Tensor]]:
         """One inference pass (``j`` of ``k``) in world coordinates."""
         if j:
@@ -361,7 +370,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
             if self.object_encoder is not None:
                 obj = batch[OBS_OBJECT_CLOUD]
                 batch[OBS_OBJECT_CLOUD] = torch.roll(obj, -j * self.config.n_object_points, dims=1)
-        frame, pred = self._run(batch, turn=2 * math.pi * j / k)
+        frame, pred = self._run(batch, turn=self.tta_turn(j, k))
         out = []
         for p in pred:
             out.append({
