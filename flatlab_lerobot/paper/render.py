@@ -25,16 +25,17 @@ SPLIT_NAMES = {"train": "Train", "test_alpha": "Test-α", "test_beta": "Test-β"
 T1_ROWS = [  # (our row label, the paper's Table 1 row)
     ("Slide", "Slide"), ("Slide, one executor", None), ("Lift", "Lift"), ("ACT", None), ("Diffusion Policy", "Diffusion Policy"),
     ("3D Diffusion Policy", "3D Diffusion Policy"), ("OpenVLA", "OpenVLA"), ("pi0", "pi0"), ("pi0.5", "pi0.5"),
-    ("FlatLab", "FlatLab"), ("FlatLab, A/C executor turned 180", None), ("FlatLab, one executor", None), ("FlatLab, observed contact", None), ("Slide (scripted)", "Slide"),
+    ("FlatLab", "FlatLab"), ("FlatLab, A/C executor turned 180", None), ("FlatLab, one executor", None), ("FlatLab, observed contact", None), ("FlatLab, observed contact, earlier artifact", None), ("Slide (scripted)", "Slide"),
     ("Lift (scripted)", "Lift"), ("oracle", None),
 ]  # fmt: skip
-OPTIONAL_T1_ROWS = {"FlatLab, one executor", "FlatLab, A/C executor turned 180", "Slide, one executor"}  # rows only some presets have (not in the paper): left out where absent
+OPTIONAL_T1_ROWS = {"FlatLab, one executor", "FlatLab, A/C executor turned 180", "Slide, one executor", "FlatLab, observed contact, earlier artifact"}  # rows only some presets have (not in the paper): left out where absent
 ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripted)": "Slide, scripted (expert, always A)",
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
             "FlatLab, A/C executor turned 180": "FlatLab, A and C posed by the executor trained under turns of ±180° (the headline in stop 35)",
             "Slide, one executor": "Slide, A posed by the executor trained under turns of ±180° (the Slide row before stop 37)",
+            "FlatLab, observed contact, earlier artifact": "FlatLab, observed contact, on an earlier artifact (an earlier A-2 generator run, S 74 / 68 / 61 %; one executor trained under turns of ±180°; the row before stop 37)",
             "FlatLab, one executor": "FlatLab, one executor (object_encoder poses every stage; the headline before stop 29)",
             "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
