@@ -12,6 +12,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     cap_slide,
     contact_heights,
     object_top,
+    observed_motion,
     overhang_mid,
     slide_cap,
     squeeze_end,
@@ -135,6 +136,36 @@ def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
+    with pytest.raises(ValueError, match="contact_from_hand=true needs --policy.contact=observed"):
+        FlatLabUnifiedConfig(contact_from_hand=True)
+    assert FlatLabUnifiedConfig(contact="observed", contact_from_hand=True).contact_from_hand
+
+
+def test_from_hand_starts_a_push_stages_at_the_hand_and_caps_the_slide_from_there():
+    """contact_from_hand: A's press, slide and release start at the commanded hand with their learned
+    displacement; the slide cap then bounds the push from where the finger is.  Other stages and
+    strategies are unchanged."""
+    disc = _box_cloud((0.15, 0.0), (0.12, 0.12, 0.002))
+    hand = np.r_[0.13, 0.01, TABLE + 0.009]
+    p0, p1 = np.r_[0.14, -0.005, 0.80], np.r_[0.40, 0.0, 0.80]  # a learned slide starting 1.8 cm off the hand
+    a, b, log = observed_motion("A", 2, "slide", p0, p1, disc, TABLE, EDGE, False, lambda: hand, from_hand=True)
+    assert a == pytest.approx(hand) and log["from_hand"]  # exactly at the hand
+    assert b[0] - a[0] == pytest.approx(slide_cap(disc, EDGE))  # the cap, counted from the hand
+    assert b[1] - a[1] == pytest.approx(0.005 * slide_cap(disc, EDGE) / 0.26)  # the learned direction kept
+    a0, b0, log0 = observed_motion("A", 2, "slide", p0, p1, disc, TABLE, EDGE, False, lambda: hand)
+    assert a0[:2] == pytest.approx(p0[:2]) and a0[2] < 0.78 and "from_hand" not in log0  # off: the learned start
+    assert a0[2] == pytest.approx(b0[2]) and a0[2] != pytest.approx(hand[2])  # ... at the rule's press height
+    assert b[2] == pytest.approx(b0[2], abs=1e-3)  # the rule's end height is kept from the hand too
+    for prim in ("press", "release"):
+        a, b, _ = observed_motion("A", 1, prim, p0, p0 + [0.003, 0.0, 0.1], disc, TABLE, EDGE, False, lambda: hand,
+                                  from_hand=True)  # fmt: skip
+        assert a == pytest.approx(hand) and b[:2] - a[:2] == pytest.approx([0.003, 0.0])
+        if prim == "release":  # no end height by the rules: the learned rise
+            assert b[2] - a[2] == pytest.approx(0.1)
+    for strategy, index, prim in (("A", 0, "touch"), ("A", 14, "grasp"), ("B", 2, "squeeze"), ("C", 2, "release")):
+        a, _, log = observed_motion(strategy, index, prim, p0, p1, disc, TABLE, EDGE, False, lambda: hand,
+                                    from_hand=True)  # fmt: skip
+        assert a[:2] == pytest.approx(p0[:2]) and "from_hand" not in log
 
 
 def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():

@@ -149,7 +149,9 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "overrides", [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "C", "contact": "observed"}]
+    "overrides",
+    [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
+     {"strategy": "C", "contact": "observed"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -178,6 +180,28 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         press = [d for d in posed if d["primitive"] == "press"]
         assert press, [d.get("primitive") for d in pols[0].decisions[0]]
         assert any(h["observed"][1] is not None for h in press[0]["heights"].values())
+
+
+@pytest.mark.parametrize("from_hand", [False, True])
+def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, from_hand):
+    """With contact_from_hand, A's press, slide and release start where the hand is: no joint-space transit
+    ("move") runs between the touch and the end of the release, so nothing but the capped slide pushes the
+    object.  The untrained tiny executor's learned starts lie elsewhere, so without it they do."""
+    pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_from_hand=str(from_hand).lower())
+    env = _env()
+    obs, _ = env.reset(seed=0)
+    pol.reset()
+    seq = []
+    for _ in range(200):
+        action = pol.select_action(_batch(obs))[0].numpy()
+        seq.append((pol.stage_indices[0], pol.stages[0]))
+        obs, _, term, trunc, _ = env.step(action)
+        if term or trunc or pol.stage_indices[0] > 3:
+            break
+    env.close()
+    during = [stage for index, stage in seq if 1 <= index <= 3]  # press, slide, release of the first pass
+    assert {"press", "slide", "release"} <= set(during), seq
+    assert ("move" in during) is (not from_hand), during
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

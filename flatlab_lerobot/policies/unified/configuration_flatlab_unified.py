@@ -123,6 +123,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
+    # with contact=observed: A's press, slide and release start at the commanded hand (position and
+    # orientation) with their learned displacement, as the expert's do, so no transit moves the pressing
+    # hand and the slide cap bounds the whole push (observed_contact.py)
+    contact_from_hand: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -131,6 +135,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
+        if self.contact_from_hand and self.contact != "observed":
+            raise ValueError(f"--policy.contact_from_hand=true needs --policy.contact=observed, got {self.contact!r}")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if self.generator_tta:

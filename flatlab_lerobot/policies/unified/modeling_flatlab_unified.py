@@ -246,12 +246,17 @@ class _Episode:
         for a in arms:
             (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
             p0, p1 = p0[0].astype(float), p1[0].astype(float)
+            R0, R1 = _rotmat(q0[0]), _rotmat(q1[0])
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
-                hand_xy = lambda a=a: self.expert.fk(self.q)[a][0][:2]  # noqa: E731  the commanded hand
+                hand = lambda a=a: self.expert.fk(self.q)[a][0]  # noqa: E731  the commanded hand
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
-                                                     obs.table_top, obs.edge_x, a == pincher, hand_xy)  # fmt: skip
+                                                     obs.table_top, obs.edge_x, a == pincher, hand,
+                                                     from_hand=self.policy.config.contact_from_hand)  # fmt: skip
+                if heights[a].get("from_hand"):  # the hand's orientation too: no transit before the motion
+                    R0 = self.expert.fk(self.q)[a][1]
+                    R1 = R0 if spec.primitive != "release" else R1
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
-            motions[a] = ArmMotion((p0, _rotmat(q0[0])), (p1, _rotmat(q1[0])), (g0, g1))
+            motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,

@@ -35,6 +35,14 @@ the observed quantities in place of the privileged ones:
 * The other stages: learned.
 
 Where a stage sets only its start height (release, lift) the learned displacement is kept.
+
+``--policy.contact_from_hand=true`` (with ``observed``): A's press, slide and release -- the stages the
+expert starts where the hand is while it holds the object -- start exactly at the commanded hand
+(position and orientation; press and slide keep the orientation), their end height by the rules above
+where they set one, else their learned displacement.  A learned start 0.5-1.5 cm off the hand made the runner move the pressing hand there first (a
+joint-space transit while it pressed), which pushed the object further than the capped slide: on
+``album_pocket`` (seed 1003) pass 2's capped 3.0-cm slide moved the album 4.0 cm, 1.1 cm of it while
+the release's start was reached, and the album went over the edge (the stage log against the true pose).
 """
 
 from __future__ import annotations
@@ -59,6 +67,7 @@ from flatlab_lerobot.strategies.c_fold_pinch import (
 from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
 
 CONTACT_CHOICES = ("learned", "observed")
+A_FROM_HAND = ("press", "slide", "release")  # A's stages that start at the hand with contact_from_hand
 TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
 TOP_RADIUS = 0.04  # m: the top under the contact point, from the points this close in x, y
 MIN_POINTS = 10  # fewer seen points than this: the learned height stays
@@ -209,24 +218,40 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
     return p0, p1
 
 
+def starts_at_hand(strategy: str, primitive: str, from_hand: bool) -> bool:
+    """Whether ``contact_from_hand`` starts this stage at the commanded hand (A's press, slide, release)."""
+    return from_hand and strategy == "A" and primitive in A_FROM_HAND
+
+
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
-    table: float, edge_x: float, pinching: bool, hand_xy,
+    table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
-    whose learned gripper closes most; ``hand_xy()``: where this arm's hand is (called only for C's pinch).
+    whose learned gripper closes most; ``hand()``: where this arm's hand is, (3,) (called only for C's
+    pinch and, with ``from_hand``, for A's press, slide and release, which then start exactly there: the
+    rules' end height kept where they set one, else the learned displacement).
     Returns the motion and what was decided (the stage log)."""
+    log: dict = {"learned": [float(p0[2]), float(p1[2])]}
+    at_hand = starts_at_hand(strategy, primitive, from_hand)
+    if at_hand:
+        here = np.asarray(hand(), float)
+        p0, p1 = apply_xy(p0, p1, here[:2])
     xy = p1[:2] if primitive == "touch" else p0[:2]  # the contact point: where the touch ends, else the start
     z = contact_heights(strategy, index, primitive, points, xy, table, edge_x, pinching=pinching)
-    log: dict = {"learned": [float(p0[2]), float(p1[2])], "observed": list(z)}
+    log["observed"] = list(z)
     p0, p1 = apply_heights(p0, p1, *z)
+    if at_hand:  # exactly where the hand is, so the runner needs no transit to the start
+        p1 = p1 + (here - p0) * [0.0, 0.0, z[1] is None]  # xy already moved; z too unless the rule set it
+        p0 = here.copy()
+        log["from_hand"] = True
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
         p1 = cap_slide(p0, p1, cap)
     if strategy == "C" and pinching and primitive in C_PINCH_STAGES:
-        p0, p1 = apply_xy(p0, p1, c_pinch_xy(primitive, points, hand_xy()))
+        p0, p1 = apply_xy(p0, p1, c_pinch_xy(primitive, points, hand()))
     if strategy == "C" and primitive == "squeeze":
         log["squeeze"] = {"learned_end": [float(v) for v in p1[:2]]}
         p1 = squeeze_end(p0, p1, points)
