@@ -22,21 +22,16 @@ from flatlab_lerobot.paper.pipeline import REPO, Context, Status, display, statu
 PAPER = json.loads((Path(__file__).with_name("paper_numbers.json")).read_text())
 SPLITS = ("train", "test_alpha", "test_beta")
 SPLIT_NAMES = {"train": "Train", "test_alpha": "Test-α", "test_beta": "Test-β"}
-T1_ROWS = [  # (our row label, the paper's Table 1 row)
-    ("Slide", "Slide"), ("Slide, one executor", None), ("Lift", "Lift"), ("ACT", None), ("Diffusion Policy", "Diffusion Policy"),
+T1_ROWS = [  # (our row label, the paper's Table 1 row); superseded runs: table "earlier" in the preset (earlier_runs)
+    ("Slide", "Slide"), ("Lift", "Lift"), ("ACT", None), ("Diffusion Policy", "Diffusion Policy"),
     ("3D Diffusion Policy", "3D Diffusion Policy"), ("OpenVLA", "OpenVLA"), ("pi0", "pi0"), ("pi0.5", "pi0.5"),
-    ("FlatLab", "FlatLab"), ("FlatLab, A/C executor turned 180", None), ("FlatLab, one executor", None), ("FlatLab, observed contact", None), ("FlatLab, observed contact, earlier artifact", None), ("Slide (scripted)", "Slide"),
+    ("FlatLab", "FlatLab"), ("FlatLab, observed contact", None), ("Slide (scripted)", "Slide"),
     ("Lift (scripted)", "Lift"), ("oracle", None),
 ]  # fmt: skip
-OPTIONAL_T1_ROWS = {"FlatLab, one executor", "FlatLab, A/C executor turned 180", "Slide, one executor", "FlatLab, observed contact, earlier artifact"}  # rows only some presets have (not in the paper): left out where absent
 ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripted)": "Slide, scripted (expert, always A)",
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
-            "FlatLab, A/C executor turned 180": "FlatLab, A and C posed by the executor trained under turns of ±180° (the headline in stop 35)",
-            "Slide, one executor": "Slide, A posed by the executor trained under turns of ±180° (the Slide row before stop 37)",
-            "FlatLab, observed contact, earlier artifact": "FlatLab, observed contact, on an earlier artifact (an earlier A-2 generator run, S 74 / 68 / 61 %; one executor trained under turns of ±180°; the row before stop 37)",
-            "FlatLab, one executor": "FlatLab, one executor (object_encoder poses every stage; the headline before stop 29)",
             "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
@@ -198,20 +193,40 @@ def table1(ctx: Context, st: dict[str, Status]) -> list[str]:
     used = []
     for label, paper_row in T1_ROWS:
         name = rows.get(label)
-        if name is None and label in OPTIONAL_T1_ROWS:
-            continue
         s = st.get(name) if name else None
         p = paper.get(paper_row) if paper_row else None
-        cells = []
-        for i, split in enumerate(SPLITS):
-            g = grasp(s.record)["split"].get(split) if _has(s) else None
-            cells += [f"{_pct(*g['G'])} ({g['G'][0]}/{g['G'][1]})" if g else "–", _paper_pct(p[i]) if p else "–"]
-        lines.append(f"| {ROW_TEXT.get(label, label)} | {' | '.join(cells)} | {_state(s)} | {f'`{name}`' if name else '–'} |")
+        lines.append(f"| {ROW_TEXT.get(label, label)} | {' | '.join(_g_cells(s, p))} | {_state(s)} | {f'`{name}`' if name else '–'} |")
         if name:
             used.append(name)
     lines += ["", "The paper's Slide and Lift are fixed-strategy methods; we report both the scripted expert with the "
               "strategy fixed and the learned unified policy with the strategy fixed. The paper has no ACT row.", ""]
-    return lines + _commands(ctx, st, used)
+    return lines + earlier_runs(ctx, st, used) + _commands(ctx, st, used)
+
+
+def _g_cells(s: Status | None, paper_row=None, with_paper: bool = True) -> list[str]:
+    """Per split: our G (k/n) and, ``with_paper``, the paper's (``paper_row``; "–" where it has none)."""
+    cells = []
+    for i, split in enumerate(SPLITS):
+        g = grasp(s.record)["split"].get(split) if _has(s) else None
+        cells.append(f"{_pct(*g['G'])} ({g['G'][0]}/{g['G'][1]})" if g else "–")
+        if with_paper:
+            cells.append(_paper_pct(paper_row[i]) if paper_row else "–")
+    return cells
+
+
+def earlier_runs(ctx: Context, st: dict[str, Status], used: list[str]) -> list[str]:
+    """Runs a newer stage superseded (table "earlier" in the preset), in the preset's order, each with its
+    own text; appends their stage names to ``used`` (their commands are listed with Table 1's)."""
+    names = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "earlier"]
+    if not names:
+        return []
+    lines = ["### Earlier runs, superseded by a row above (kept for comparison)", "",
+             "| run | Train | Test-α | Test-β | status | stage |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for n in names:
+        rep = ctx.stages[n].report
+        lines.append(f"| {rep.get('text') or rep.get('row') or n} | {' | '.join(_g_cells(st.get(n), with_paper=False))} | {_state(st.get(n))} | `{n}` |")
+        used.append(n)
+    return [*lines, ""]
 
 
 def table2(ctx: Context, st: dict[str, Status]) -> list[str]:
