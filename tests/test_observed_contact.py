@@ -8,6 +8,7 @@ from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatL
 from flatlab_lerobot.policies.unified.observed_contact import (
     apply_heights,
     apply_xy,
+    b_touch_at_face,
     c_pinch_xy,
     cap_slide,
     contact_heights,
@@ -18,7 +19,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     squeeze_end,
 )
 from flatlab_lerobot.strategies.a_push_to_edge import a_press, a_slide, a_touch, slide_distance
-from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
+from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
 TABLE, EDGE = 0.75, 0.30
 
@@ -136,15 +137,16 @@ def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
-    with pytest.raises(ValueError, match="contact_from_hand=true needs --policy.contact=observed"):
-        FlatLabUnifiedConfig(contact_from_hand=True)
-    assert FlatLabUnifiedConfig(contact="observed", contact_from_hand=True).contact_from_hand
+    for flag in ("contact_from_hand", "contact_b_face"):
+        with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
+            FlatLabUnifiedConfig(**{flag: True})
+        assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)
 
 
-def test_from_hand_starts_a_push_stages_at_the_hand_and_caps_the_slide_from_there():
-    """contact_from_hand: A's press, slide and release start at the commanded hand with their learned
-    displacement; the slide cap then bounds the push from where the finger is.  Other stages and
-    strategies are unchanged."""
+def test_from_hand_starts_the_experts_current_stages_at_the_hand_and_caps_the_slide_from_there():
+    """contact_from_hand: A's and B's stages the expert starts where the hand is begin at the commanded hand
+    with their learned displacement; the slide cap then bounds the push from where the finger is.  Their
+    other stages, and C's, are unchanged."""
     disc = _box_cloud((0.15, 0.0), (0.12, 0.12, 0.002))
     hand = np.r_[0.13, 0.01, TABLE + 0.009]
     p0, p1 = np.r_[0.14, -0.005, 0.80], np.r_[0.40, 0.0, 0.80]  # a learned slide starting 1.8 cm off the hand
@@ -156,16 +158,39 @@ def test_from_hand_starts_a_push_stages_at_the_hand_and_caps_the_slide_from_ther
     assert a0[:2] == pytest.approx(p0[:2]) and a0[2] < 0.78 and "from_hand" not in log0  # off: the learned start
     assert a0[2] == pytest.approx(b0[2]) and a0[2] != pytest.approx(hand[2])  # ... at the rule's press height
     assert b[2] == pytest.approx(b0[2], abs=1e-3)  # the rule's end height is kept from the hand too
-    for prim in ("press", "release"):
-        a, b, _ = observed_motion("A", 1, prim, p0, p0 + [0.003, 0.0, 0.1], disc, TABLE, EDGE, False, lambda: hand,
-                                  from_hand=True)  # fmt: skip
-        assert a == pytest.approx(hand) and b[:2] - a[:2] == pytest.approx([0.003, 0.0])
-        if prim == "release":  # no end height by the rules: the learned rise
+    rise = np.r_[0.003, 0.0, 0.1]
+    for strategy, index, prim in (("A", 1, "press"), ("A", 3, "release"), ("A", 14, "grasp"), ("A", 15, "lift"),
+                                  ("B", 2, "squeeze"), ("B", 3, "lift")):
+        a, b, log = observed_motion(strategy, index, prim, p0, p0 + rise, disc, TABLE, EDGE, False, lambda: hand,
+                                    from_hand=True)  # fmt: skip
+        assert a == pytest.approx(hand) and b[:2] - a[:2] == pytest.approx(rise[:2]) and log["from_hand"], prim
+        if prim in ("release", "lift"):  # no end height by the rules: the learned rise
             assert b[2] - a[2] == pytest.approx(0.1)
-    for strategy, index, prim in (("A", 0, "touch"), ("A", 14, "grasp"), ("B", 2, "squeeze"), ("C", 2, "release")):
+    for strategy, index, prim in (("A", 0, "touch"), ("A", 12, "move"), ("B", 1, "touch"), ("C", 1, "squeeze"),
+                                  ("C", 2, "release")):
         a, _, log = observed_motion(strategy, index, prim, p0, p1, disc, TABLE, EDGE, False, lambda: hand,
                                     from_hand=True)  # fmt: skip
-        assert a[:2] == pytest.approx(p0[:2]) and "from_hand" not in log
+        assert a[:2] == pytest.approx(p0[:2]) and "from_hand" not in log, prim
+
+
+def test_b_touch_ends_just_outside_the_seen_face_it_approaches():
+    """contact_b_face: a learned touch that ends 4 cm inside a large board's side is moved back along its own
+    direction to end FINGER_HALF_WIDTH outside the seen face (the expert's b_touch); one that stops short
+    is moved in; the approach's length and its height are kept."""
+    board = _box_cloud((0.0, 0.01), (0.25, 0.32, 0.035), n=4000)
+    left0, left1 = np.r_[0.015, 0.176, 0.764], np.r_[0.012, 0.140, 0.764]  # the learned left hand (seen)
+    a, b = b_touch_at_face(left0, left1, board)
+    assert b[1] == pytest.approx(0.01 + 0.16 + FINGER_HALF_WIDTH, abs=3e-3)
+    assert b - a == pytest.approx(left1 - left0)
+    right0, right1 = np.r_[0.0, -0.30, 0.764], np.r_[0.0, -0.26, 0.764]  # stops 11 cm short of the right face
+    _, b = b_touch_at_face(right0, right1, board)
+    assert b[1] == pytest.approx(0.01 - 0.16 - FINGER_HALF_WIDTH, abs=3e-3)
+    a, b, log = observed_motion("B", 1, "touch", left0, left1, board, TABLE, EDGE, False, None, b_face=True)
+    assert b[1] == pytest.approx(0.18, abs=3e-3) and log["b_face"]
+    assert b[2] == pytest.approx(TABLE + max(0.014, 0.035 - 0.04))  # the B height rule as before
+    _, b, log = observed_motion("B", 1, "touch", left0, left1, board, TABLE, EDGE, False, None)
+    assert b[1] == pytest.approx(0.140) and "b_face" not in log  # off: learned
+    np.testing.assert_array_equal(b_touch_at_face(left0, left1, board[:3])[1], left1)  # unseen: unchanged
 
 
 def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():

@@ -151,6 +151,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
 @pytest.mark.parametrize(
     "overrides",
     [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
+     {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true"},
      {"strategy": "C", "contact": "observed"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
@@ -174,7 +175,10 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
     assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
     if overrides:  # the touch's heights were set from the object cloud
         posed = [d for d in pols[0].decisions[0] if "heights" in d]
-        assert posed and all(h["observed"][1] is not None for h in posed[0]["heights"].values())
+        touch = [d for d in posed if d["primitive"] == "touch"]
+        assert touch and all(h["observed"][1] is not None for h in touch[0]["heights"].values())
+    if overrides.get("contact_b_face"):  # B's touch was moved to the seen faces
+        assert all("b_face" in h for h in touch[0]["heights"].values())
     if c:  # the squeeze was stretched to the seen centre, the pinching hand came down at the table
         assert any("squeeze" in h for d in posed for h in d["heights"].values())
         press = [d for d in posed if d["primitive"] == "press"]

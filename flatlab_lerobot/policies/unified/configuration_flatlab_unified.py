@@ -123,10 +123,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
-    # with contact=observed: A's press, slide and release start at the commanded hand (position and
-    # orientation) with their learned displacement, as the expert's do, so no transit moves the pressing
-    # hand and the slide cap bounds the whole push (observed_contact.py)
+    # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
+    # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
+    # so no transit moves a hand that presses or holds the object (observed_contact.py)
     contact_from_hand: bool = False
+    # with contact=observed: B's touch ends just outside the face of the seen object cloud it approaches
+    # (observed_contact.py)
+    contact_b_face: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -135,8 +138,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
-        if self.contact_from_hand and self.contact != "observed":
-            raise ValueError(f"--policy.contact_from_hand=true needs --policy.contact=observed, got {self.contact!r}")
+        for flag in ("contact_from_hand", "contact_b_face"):
+            if getattr(self, flag) and self.contact != "observed":
+                raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if self.generator_tta:

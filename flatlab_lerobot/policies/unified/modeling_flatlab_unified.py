@@ -251,10 +251,11 @@ class _Episode:
                 hand = lambda a=a: self.expert.fk(self.q)[a][0]  # noqa: E731  the commanded hand
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
                                                      obs.table_top, obs.edge_x, a == pincher, hand,
-                                                     from_hand=self.policy.config.contact_from_hand)  # fmt: skip
-                if heights[a].get("from_hand"):  # the hand's orientation too: no transit before the motion
-                    R0 = self.expert.fk(self.q)[a][1]
-                    R1 = R0 if spec.primitive != "release" else R1
+                                                     from_hand=self.policy.config.contact_from_hand,
+                                                     b_face=self.policy.config.contact_b_face)  # fmt: skip
+                if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
+                    R_hand = self.expert.fk(self.q)[a][1]
+                    R0, R1 = R_hand, R1 @ R0.T @ R_hand
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))

@@ -36,13 +36,21 @@ the observed quantities in place of the privileged ones:
 
 Where a stage sets only its start height (release, lift) the learned displacement is kept.
 
-``--policy.contact_from_hand=true`` (with ``observed``): A's press, slide and release -- the stages the
-expert starts where the hand is while it holds the object -- start exactly at the commanded hand
-(position and orientation; press and slide keep the orientation), their end height by the rules above
-where they set one, else their learned displacement.  A learned start 0.5-1.5 cm off the hand made the runner move the pressing hand there first (a
-joint-space transit while it pressed), which pushed the object further than the capped slide: on
-``album_pocket`` (seed 1003) pass 2's capped 3.0-cm slide moved the album 4.0 cm, 1.1 cm of it while
-the release's start was reached, and the album went over the edge (the stage log against the true pose).
+``--policy.contact_from_hand=true`` (with ``observed``): A's and B's stages that the expert starts where
+the hand is (``StageSpec.start == "current"``: A's press, slide, release, grasp and lift, B's squeeze and
+lift) start exactly at the commanded hand (position and orientation), with their learned displacement
+and change of orientation, their end height by the rules above where they set one.  A learned start
+0.5-1.5 cm off the hand made the runner move the hand there first, a joint-space transit while it pressed
+or held the object: on ``album_pocket`` (seed 1003) pass 2's capped 3.0-cm slide moved the album 4.0 cm,
+1.1 cm of it while the release's start was reached, and the album went over the edge (the stage log
+against the true pose).  C is left as it is: its pinch rules already place the pinching hand.
+
+``--policy.contact_b_face=true`` (with ``observed``): B's touch moved along its own horizontal direction
+so that it ends ``FINGER_HALF_WIDTH`` outside the face of the seen cloud it approaches, as the expert's
+hands end at the object's side (``b_squeeze._b_targets``).  On the large unseen boards the learned touch
+ended 3-4 cm inside the face (``painting_portrait`` 25 x 32 cm, ``chess_folding_wood`` 40 x 40 cm, seed
+1000, against the true pose: the executor's hands land about where Train-sized boards have their sides)
+and the squeeze that followed lifted nothing.  With ``contact_from_hand`` the squeeze then starts there.
 """
 
 from __future__ import annotations
@@ -64,10 +72,12 @@ from flatlab_lerobot.strategies.c_fold_pinch import (
     pinch_tcp_z,
     press_tcp_z,
 )
-from flatlab_lerobot.strategies.world import FINGER_TIP_BELOW_TCP
+from flatlab_lerobot.strategies.registry import STAGE_SPECS
+from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
 CONTACT_CHOICES = ("learned", "observed")
-A_FROM_HAND = ("press", "slide", "release")  # A's stages that start at the hand with contact_from_hand
+FROM_HAND_STRATEGIES = ("A", "B")  # contact_from_hand: their "current" stages start at the hand (C: see above)
+B_FACE_QUANTILE = 0.5  # percentile of the seen points along the approach taken as the face (a few stray points)
 TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
 TOP_RADIUS = 0.04  # m: the top under the contact point, from the points this close in x, y
 MIN_POINTS = 10  # fewer seen points than this: the learned height stays
@@ -218,23 +228,45 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
     return p0, p1
 
 
-def starts_at_hand(strategy: str, primitive: str, from_hand: bool) -> bool:
-    """Whether ``contact_from_hand`` starts this stage at the commanded hand (A's press, slide, release)."""
-    return from_hand and strategy == "A" and primitive in A_FROM_HAND
+def starts_at_hand(strategy: str, index: int, from_hand: bool) -> bool:
+    """Whether ``contact_from_hand`` starts stage ``index`` of ``strategy`` at the commanded hand: the
+    expert starts it where the hand is (A's press, slide, release, grasp, lift; B's squeeze, lift)."""
+    return from_hand and strategy in FROM_HAND_STRATEGIES and STAGE_SPECS[strategy][index].start == "current"
+
+
+def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """B's touch ``p0 -> p1`` moved along its own horizontal direction so that it ends FINGER_HALF_WIDTH
+    outside the face of the seen cloud it approaches (the points' B_FACE_QUANTILE-th percentile along the
+    approach, from the seen centre); unchanged when the object is unseen or the touch does not move."""
+    p0, p1 = np.array(p0, float), np.array(p1, float)
+    d = p1[:2] - p0[:2]
+    if len(points) < MIN_POINTS or np.linalg.norm(d) < 1e-6:
+        return p0, p1
+    d /= np.linalg.norm(d)
+    c = seen_centre(points)
+    face = float(np.percentile((points[:, :2] - c) @ d, B_FACE_QUANTILE))  # < 0: the face the hand comes to
+    shift = (face - FINGER_HALF_WIDTH - float((p1[:2] - c) @ d)) * d
+    p0[:2] += shift
+    p1[:2] += shift
+    return p0, p1
 
 
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
-    table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False,
+    table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
     whose learned gripper closes most; ``hand()``: where this arm's hand is, (3,) (called only for C's
-    pinch and, with ``from_hand``, for A's press, slide and release, which then start exactly there: the
-    rules' end height kept where they set one, else the learned displacement).
+    pinch and, with ``from_hand``, for the stages :func:`starts_at_hand` names, which then start exactly
+    there: the rules' end height kept where they set one, else the learned displacement).  ``b_face``:
+    B's touch ends at the seen face (:func:`b_touch_at_face`).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
-    at_hand = starts_at_hand(strategy, primitive, from_hand)
+    if b_face and strategy == "B" and primitive == "touch":
+        p0, p1 = b_touch_at_face(p0, p1, points)
+        log["b_face"] = [float(v) for v in p1[:2]]
+    at_hand = starts_at_hand(strategy, index, from_hand)
     if at_hand:
         here = np.asarray(hand(), float)
         p0, p1 = apply_xy(p0, p1, here[:2])
