@@ -8,6 +8,7 @@ from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatL
 from flatlab_lerobot.policies.unified.observed_contact import (
     apply_heights,
     apply_xy,
+    b_from_hand,
     b_touch_at_face,
     c_pinch_xy,
     cap_slide,
@@ -163,7 +164,9 @@ def test_from_hand_starts_the_experts_current_stages_at_the_hand_and_caps_the_sl
                                   ("B", 2, "squeeze"), ("B", 3, "lift")):
         a, b, log = observed_motion(strategy, index, prim, p0, p0 + rise, disc, TABLE, EDGE, False, lambda: hand,
                                     from_hand=True)  # fmt: skip
-        assert a == pytest.approx(hand) and b[:2] - a[:2] == pytest.approx(rise[:2]) and log["from_hand"], prim
+        assert a == pytest.approx(hand) and log["from_hand"], prim
+        # A keeps the learned horizontal displacement; B's lift rises straight, its squeeze is the expert's length
+        assert b[:2] - a[:2] == pytest.approx(rise[:2] if strategy == "A" else ([0, 0] if prim == "lift" else rise[:2])), prim
         if prim in ("release", "lift"):  # no end height by the rules: the learned rise
             assert b[2] - a[2] == pytest.approx(0.1)
     for strategy, index, prim in (("A", 0, "touch"), ("A", 12, "move"), ("B", 1, "touch"), ("C", 1, "squeeze"),
@@ -171,6 +174,18 @@ def test_from_hand_starts_the_experts_current_stages_at_the_hand_and_caps_the_sl
         a, _, log = observed_motion(strategy, index, prim, p0, p1, disc, TABLE, EDGE, False, lambda: hand,
                                     from_hand=True)  # fmt: skip
         assert a[:2] == pytest.approx(p0[:2]) and "from_hand" not in log, prim
+
+
+def test_b_squeeze_from_the_hand_is_the_experts_length_and_the_lift_straight():
+    from flatlab_lerobot.strategies.b_squeeze import B_SQUEEZE
+
+    p0 = np.r_[0.02, 0.18, 0.764]
+    long = b_from_hand("squeeze", p0, p0 + [0.003, -0.041, 0.0])  # the learned 4.1-cm squeeze
+    assert np.linalg.norm(long[:2] - p0[:2]) == pytest.approx(B_SQUEEZE) and long[1] < p0[1]
+    short = p0 + [0.0, -0.01, 0.0]
+    np.testing.assert_array_equal(b_from_hand("squeeze", p0, short), short)  # a shorter one stays
+    lift = b_from_hand("lift", p0, p0 + [-0.002, -0.011, 0.15])
+    assert lift == pytest.approx(p0 + [0, 0, 0.15])
 
 
 def test_b_touch_ends_just_outside_the_seen_face_it_approaches():

@@ -32,7 +32,8 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
-            "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch (not in the paper)"}  # fmt: skip
+            "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch, "
+                                         "A's and B's continuing stages from the hand, B's touch at the seen face (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor
@@ -416,7 +417,15 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
                      f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
-    return [*lines, "", *_commands(ctx, st, list(rows.values()))]
+    # desk stages a newer one of the same row superseded (the preset's first wins): below, with their own text
+    earlier = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "desk" and n not in rows.values()]
+    for n in earlier:
+        s, rep = st.get(n), ctx.stages[n].report
+        k_n = desk(s.record) if _has(s) else None
+        per = desk_objects(s.record) if _has(s) else None
+        lines.append(f"| {rep.get('text') or rep.get('row') or n} | {f'{k_n[0]}/{k_n[1]}' if k_n else '–'} | "
+                     f"{_pct(*k_n) if k_n else '–'} | – | {'–' if per is None else f'{per:.2f}'} | {_state(s)} | `{n}` |")  # fmt: skip
+    return [*lines, "", *_commands(ctx, st, [*rows.values(), *earlier])]
 
 
 def tables(ctx: Context, st: dict[str, Status] | None = None, plots: Path | None = None, page_dir: Path | None = None) -> str:

@@ -1,6 +1,6 @@
 """``--policy.contact=observed``: the heights of the stages that touch the object, and the length of A's
 slide, come from the observed clouds by the expert's own rules; every x, y, orientation, gripper width,
-arm choice and strategy stays learned.  Not in the paper: a measured answer to "how much of the gap is
+arm choice and strategy stays learned (but for C's pinch and squeeze below, and the two switches at the end).  Not in the paper: a measured answer to "how much of the gap is
 the executor's upward height bias" (1-1.5 cm on Train frames too: the last constant-lr checkpoint's offset,
 docs/executor.md), which keeps strategy A's press above 5-mm discs and B's squeeze above thin boards.
 
@@ -39,7 +39,8 @@ Where a stage sets only its start height (release, lift) the learned displacemen
 ``--policy.contact_from_hand=true`` (with ``observed``): A's and B's stages that the expert starts where
 the hand is (``StageSpec.start == "current"``: A's press, slide, release, grasp and lift, B's squeeze and
 lift) start exactly at the commanded hand (position and orientation), with their learned displacement
-and change of orientation, their end height by the rules above where they set one.  A learned start
+and change of orientation, their end height by the rules above where they set one; B's squeeze at most
+the expert's ``B_SQUEEZE`` long and its lift straight up (:func:`b_from_hand`).  A learned start
 0.5-1.5 cm off the hand made the runner move the hand there first, a joint-space transit while it pressed
 or held the object: on ``album_pocket`` (seed 1003) pass 2's capped 3.0-cm slide moved the album 4.0 cm,
 1.1 cm of it while the release's start was reached, and the album went over the edge (the stage log
@@ -72,6 +73,7 @@ from flatlab_lerobot.strategies.c_fold_pinch import (
     pinch_tcp_z,
     press_tcp_z,
 )
+from flatlab_lerobot.strategies.b_squeeze import B_SQUEEZE
 from flatlab_lerobot.strategies.registry import STAGE_SPECS
 from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
@@ -234,6 +236,21 @@ def starts_at_hand(strategy: str, index: int, from_hand: bool) -> bool:
     return from_hand and strategy in FROM_HAND_STRATEGIES and STAGE_SPECS[strategy][index].start == "current"
 
 
+def b_from_hand(primitive: str, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """B's squeeze or lift started at the hand (``contact_from_hand``): the squeeze runs at most the expert's
+    B_SQUEEZE along its own horizontal direction, the lift rises straight (its learned horizontal drift
+    dropped), as the expert's do.  With the learned starts a transit back outwards relaxed the squeeze before
+    each of them; from the hand the learned 3-4 cm squeeze and 1 cm inward lift pressed 3.4 cm into a plywood
+    board's sides (``board_plywood``, seed 1000) and it dropped during the hold."""
+    p1 = np.array(p1, float)
+    d = p1[:2] - p0[:2]
+    if primitive == "lift":
+        p1[:2] = p0[:2]
+    elif primitive == "squeeze" and np.linalg.norm(d) > B_SQUEEZE:
+        p1[:2] = p0[:2] + d * (B_SQUEEZE / np.linalg.norm(d))
+    return p1
+
+
 def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """B's touch ``p0 -> p1`` moved along its own horizontal direction so that it ends FINGER_HALF_WIDTH
     outside the face of the seen cloud it approaches (the points' B_FACE_QUANTILE-th percentile along the
@@ -278,6 +295,8 @@ def observed_motion(
         p1 = p1 + (here - p0) * [0.0, 0.0, z[1] is None]  # xy already moved; z too unless the rule set it
         p0 = here.copy()
         log["from_hand"] = True
+        if strategy == "B":  # no transit relaxes the squeeze any more: the expert's squeeze length, a straight lift
+            p1 = b_from_hand(primitive, p0, p1)
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
