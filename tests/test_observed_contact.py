@@ -16,6 +16,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_top,
     observed_motion,
     overhang_mid,
+    shortened,
     slide_cap,
     squeeze_end,
 )
@@ -135,6 +136,16 @@ def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
     np.testing.assert_array_equal(cap_slide(p0, short, cap), short)  # a shorter learned slide stays
 
 
+def test_shortened_caps_only_the_named_coordinates_and_never_reverses():
+    p0, p1 = np.r_[0.0, 0.0, 0.8], np.r_[0.03, 0.04, 0.7]  # 5 cm horizontally, 10 cm down
+    xy = shortened(p0, p1, 0.05, 0.025, dims=slice(0, 2))
+    np.testing.assert_allclose(xy, [0.015, 0.02, 0.7])  # half the horizontal motion, the height untouched
+    np.testing.assert_allclose(shortened(p0, p1, 0.05, -0.01), p0)  # a negative cap: no motion at all
+    for cap in (None, 0.05, 0.2):  # no cap, or one the motion already keeps: unchanged
+        np.testing.assert_array_equal(shortened(p0, p1, 0.05, cap), p1)
+    np.testing.assert_array_equal(shortened(p0, p1, -0.05, 0.01), p1)  # a motion going backwards: unchanged
+
+
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
@@ -221,3 +232,51 @@ def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():
     assert (a[2], b[2]) == (0.82, 0.76)
     a, b = apply_xy(p0, p1, None)
     np.testing.assert_array_equal(b, p1)
+
+
+def test_a_grasp_arm_is_the_seen_sides_and_a_far_arms_motion_is_mirrored_onto_it():
+    from flatlab_lerobot.policies.unified.observed_contact import a_grasp_arms, a_grasp_side, mirror_pose
+    from flatlab_lerobot.sim.robot import tcp_rotation
+
+    assert a_grasp_side(_box_cloud((0.2, -0.05), (0.28, 0.2, 0.008))) == "right"  # y <= 0: the expert's rule
+    assert a_grasp_side(_box_cloud((0.2, 0.05), (0.28, 0.2, 0.008))) == "left"
+    assert a_grasp_side(np.zeros((3, 3))) is None  # too few points: no rule
+    # the expert's approach of the left arm, mirrored across the object's centre line, is the right arm's
+    yaw, yc = np.radians(35.0), -0.04
+    a_left, a_right = np.r_[-np.cos(yaw), -np.sin(yaw), 0.0], np.r_[-np.cos(yaw), np.sin(yaw), 0.0]
+    end_left = np.r_[0.34, yc, 0.755] + 0.04 * a_left
+    p, R = mirror_pose(end_left, tcp_rotation(a_left, [0, 0, 1]), yc)
+    np.testing.assert_allclose(p, np.r_[0.34, yc, 0.755] + 0.04 * a_right, atol=1e-12)
+    np.testing.assert_allclose(R, tcp_rotation(a_right, [0, 0, 1]), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    prob = {"left": 0.9, "right": 0.2}
+    assert a_grasp_arms(["left"], prob, "right") == (["right"], "left")  # the far arm's motion, mirrored
+    assert a_grasp_arms(["left", "right"], prob, "right") == (["right"], None)  # the grasping arm only
+    assert a_grasp_arms(["left", "right"], prob, "right", preapproach=True) == (["left", "right"], None)
+    assert a_grasp_arms(["right"], prob, "right") == (["right"], None)
+    assert a_grasp_arms(["left"], prob, None) == (["left"], None)  # nothing seen: learned
+
+
+def test_contact_a_grasp_needs_observed():
+    with pytest.raises(ValueError, match="contact_a_grasp"):
+        FlatLabUnifiedConfig(contact_a_grasp=True)
+    assert FlatLabUnifiedConfig(contact="observed", contact_a_grasp=True).contact_a_grasp
+
+
+def test_a_grasp_preapproach_is_a_line_from_the_hand_to_the_learned_pose():
+    from flatlab_lerobot.policies.unified.observed_contact import A_PREAPPROACH
+
+    cloud = _box_cloud((0.25, -0.04), (0.28, 0.2, 0.008))
+    hand = np.r_[0.247, -0.033, 0.86]  # the pusher 10 cm above the magazine after its release
+    p0, p1 = np.r_[0.43, -0.08, 0.87], np.r_[0.44, -0.083, 0.868]
+    args = ("A", A_PREAPPROACH, "move", p0, p1, cloud, TABLE, EDGE, False, lambda: hand)
+    a, b, log = observed_motion(*args, a_grasp=True)
+    np.testing.assert_array_equal(a, hand)
+    np.testing.assert_array_equal(b, p1)
+    assert log["line"]
+    a, b, log = observed_motion(*args)  # without the switch: the learned transit target, untouched
+    np.testing.assert_array_equal(a, p0)
+    assert "line" not in log
+    a, b, log = observed_motion("A", A_PREAPPROACH + 1, "touch", p0, p1, cloud, TABLE, EDGE, False, lambda: hand,
+                                a_grasp=True)  # fmt: skip
+    assert "line" not in log  # the approach keeps its learned start (and its transit)

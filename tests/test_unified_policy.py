@@ -152,7 +152,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     "overrides",
     [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
      {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true"},
-     {"strategy": "C", "contact": "observed"}],
+     {"strategy": "C", "contact": "observed"},
+     {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -168,8 +169,9 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
     def absent(obs):
         return {k: v for k, v in _batch(obs).items() if k != OBS_ENV_STATE}
 
-    c = overrides.get("strategy") == "C"
-    acts = _rollout(pols, steps=140 if c else 30, batch_fns=[_batch, zeroed, absent])  # C: up to its pinch
+    c, a_arm = overrides.get("strategy") == "C", bool(overrides.get("contact_a_grasp"))
+    steps = 140 if c else 150 if a_arm else 30  # C: up to its pinch; A's grasp arm: into the grasp stages
+    acts = _rollout(pols, steps=steps, batch_fns=[_batch, zeroed, absent])
     np.testing.assert_array_equal(acts[0], acts[1])
     np.testing.assert_array_equal(acts[0], acts[2])
     assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
@@ -177,6 +179,11 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         posed = [d for d in pols[0].decisions[0] if "heights" in d]
         touch = [d for d in posed if d["primitive"] == "touch"]
         assert touch and all(h["observed"][1] is not None for h in touch[0]["heights"].values())
+    if a_arm:  # A's grasp stages were commanded to the seen side's arm, the pre-approach a line from the hand
+        chosen = [d for d in pols[0].decisions[0] if "a_arm" in d]
+        assert chosen and all(d["a_arm"]["side"] in ("left", "right") for d in chosen), pols[0].decisions[0]
+        assert all(d["arms"] == [d["a_arm"]["side"]] for d in chosen[1:])  # after the pre-approach: that arm only
+        assert all(h.get("line") for h in chosen[0]["heights"].values())
     if overrides.get("contact_b_face"):  # B's touch was moved to the seen faces
         assert all("b_face" in h for h in touch[0]["heights"].values())
     if c:  # the squeeze was stretched to the seen centre, the pinching hand came down at the table

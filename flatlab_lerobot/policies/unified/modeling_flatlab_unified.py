@@ -51,7 +51,15 @@ from flatlab_lerobot.policies import distinct_indices, fps_indices, seen_points
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
-from flatlab_lerobot.policies.unified.observed_contact import object_footprint_x, observed_motion
+from flatlab_lerobot.policies.unified.observed_contact import (
+    A_PREAPPROACH,
+    a_grasp_arms,
+    a_grasp_side,
+    mirror_pose,
+    object_footprint_x,
+    observed_motion,
+    seen_centre,
+)
 from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
@@ -125,6 +133,7 @@ class _Episode:
         self.actions = None
         self.after = None  # clear_all: the carry-off / go-home / settle actions after the final hold
         self.lift_arms: tuple[str, ...] = ()  # the arms the last posed stage commanded (they hold what was lifted)
+        self.a_side: str | None = None  # contact_a_grasp: A's grasp arm by the seen side, decided at the pre-approach
         self.obs: Observed | None = None
         self.started = False  # the current attempt has its strategy
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
@@ -208,7 +217,7 @@ class _Episode:
         """Start a new attempt from the joints commanded last (the strategy is chosen again)."""
         self.q = np.r_[self.last[0:7], self.last[8:15]].copy()
         self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
-        self.strategy, self.index, self.lift_arms, self.started = self.fixed, -1, (), False
+        self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
@@ -240,28 +249,53 @@ class _Episode:
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
         motions, duration, heights = {}, 0.0, {}
         observed = self.policy.config.contact == "observed"
+        source, y_centre, arm_log = None, None, {}  # contact_a_grasp: the learned arm mirrored onto the rule's arm
+        a_grasp = observed and self.policy.config.contact_a_grasp
+        if a_grasp and self.strategy == "A" and self.index >= A_PREAPPROACH:  # A's pre-approach and after
+            if self.index == A_PREAPPROACH:  # the side is decided once, from the cloud seen now
+                self.a_side = a_grasp_side(obs.object_points)
+            learned = arms
+            arms, source = a_grasp_arms(learned, prob, self.a_side, preapproach=self.index == A_PREAPPROACH)
+            if source is not None:
+                y_centre = float(seen_centre(obs.object_points)[1])
+            arm_log = {"a_arm": {"learned": learned, "side": self.a_side, "mirrored_from": source}}
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
+            fk_cache: dict = {}  # the commanded hands' poses, computed once per stage and only if a rule asks
+
+            def commanded(arm: str):
+                if not fk_cache:
+                    fk_cache.update(self.expert.fk(self.q))
+                return fk_cache[arm]
         for a in arms:
-            (p0, q0), (p1, q1) = poses[a]["start"], poses[a]["end"]
+            src = source or a
+            (p0, q0), (p1, q1) = poses[src]["start"], poses[src]["end"]
             p0, p1 = p0[0].astype(float), p1[0].astype(float)
             R0, R1 = _rotmat(q0[0]), _rotmat(q1[0])
+            if source is not None:
+                (p0, R0), (p1, R1) = mirror_pose(p0, R0, y_centre), mirror_pose(p1, R1, y_centre)
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
-                hand = lambda a=a: self.expert.fk(self.q)[a][0]  # noqa: E731  the commanded hand
+                hand = lambda a=a: commanded(a)[0]  # noqa: E731  the commanded hand's position
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
                                                      obs.table_top, obs.edge_x, a == pincher, hand,
                                                      from_hand=self.policy.config.contact_from_hand,
-                                                     b_face=self.policy.config.contact_b_face)  # fmt: skip
+                                                     b_face=self.policy.config.contact_b_face,
+                                                     a_grasp=a_grasp)  # fmt: skip
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
-                    R_hand = self.expert.fk(self.q)[a][1]
+                    R_hand = commanded(a)[1]
                     R0, R1 = R_hand, R1 @ R0.T @ R_hand
-            g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[a]["gripper"])
+                if heights[a].get("still"):  # A's grasp (contact_a_grasp): the fingers close, the hand stays
+                    R1 = R0
+                if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
+                    R0 = commanded(a)[1]
+                    duration = max(duration, spec.transit)
+            g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed else {})})  # fmt: skip
+                         "duration": duration, **({"heights": heights} if observed else {}), **arm_log})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
     def _proprio(self, obs: Observed) -> np.ndarray:

@@ -1,8 +1,9 @@
 """``--policy.contact=observed``: the heights of the stages that touch the object, and the length of A's
 slide, come from the observed clouds by the expert's own rules; every x, y, orientation, gripper width,
-arm choice and strategy stays learned (but for C's pinch and squeeze below, and the two switches at the end).  Not in the paper: a measured answer to "how much of the gap is
-the executor's upward height bias" (1-1.5 cm on Train frames too: the last constant-lr checkpoint's offset,
-docs/executor.md), which keeps strategy A's press above 5-mm discs and B's squeeze above thin boards.
+arm choice and strategy stays learned (but for C's pinch and squeeze below, and the switches at the end).
+Not in the paper: a measured answer to "how much of the gap is the executor's upward height bias" (1-1.5
+cm on Train frames too: the last constant-lr checkpoint's offset, docs/executor.md), which keeps strategy
+A's press above 5-mm discs and B's squeeze above thin boards.
 
 What is read: the seen object points (``observation.object_pointcloud``), the table top and the usable
 edge from the calibration (``observation.cell``) -- never ``environment_state``.  The expert's rules, with
@@ -52,6 +53,23 @@ hands end at the object's side (``b_squeeze._b_targets``).  On the large unseen 
 ended 3-4 cm inside the face (``painting_portrait`` 25 x 32 cm, ``chess_folding_wood`` 40 x 40 cm, seed
 1000, against the true pose: the executor's hands land about where Train-sized boards have their sides)
 and the squeeze that followed lifted nothing.  With ``contact_from_hand`` the squeeze then starts there.
+
+``--policy.contact_a_grasp=true`` (with ``observed``): A's grasp stages (pre-approach, approach, grasp, lift)
+are commanded to the arm on the side of the seen object's centre, decided once at the pre-approach, as
+the expert's ``_a_grasp_arm`` decides from the true centre (:func:`a_grasp_side`).  Where the executor
+commands only the other arm, that arm's learned motion is mirrored across the seen centre line onto the
+rule's arm (:func:`mirror_pose`: the expert's approach for the two arms are such mirror images); the
+executor's pose of an arm it does not command is untrained.  The learned arm reached across for objects
+on its far side: on ``magazine_fashion`` (seed 1004, the magazine 5.5 cm right of the centre) the left
+arm's transit to the approach start swung the hand 60 cm up and back down onto the magazine, which
+flipped off the table; on ``disk_flying_disc`` (seed 1001) the left hand stopped 2.6 cm above its
+commanded approach height and closed on nothing (the stage log against the true pose).  And the
+pre-approach (the expert's joint-space transit to a pose above the approach's start) runs as a Cartesian
+line from where each commanded hand is to its learned pose, taking the transit's time
+(:func:`observed_motion`'s ``a_grasp``): from the pusher's release pose 10 cm above a magazine, the
+transit's joint-space path dipped the hand 9.5 cm onto it and dragged it off the table
+(``magazine_fashion`` seed 1003, and so fell 4 of the 6 trials of a 12-trial pilot that still failed with
+the arm by side alone); the expert's transit from its own joints arches 50 cm up instead.
 """
 
 from __future__ import annotations
@@ -78,6 +96,7 @@ from flatlab_lerobot.strategies.registry import STAGE_SPECS
 from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
 CONTACT_CHOICES = ("learned", "observed")
+A_PREAPPROACH = A_PASSES * PASS_STAGES  # index of A's pre-approach ("move"): the grasp stages start there
 FROM_HAND_STRATEGIES = ("A", "B")  # contact_from_hand: their "current" stages start at the hand (C: see above)
 B_FACE_QUANTILE = 0.5  # percentile of the seen points along the approach taken as the face (a few stray points)
 TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
@@ -183,12 +202,20 @@ def slide_cap(points: np.ndarray, edge_x: float) -> float | None:
     return slide_distance(overhang_missing(max_x, length_x, edge_x), length_x)
 
 
+def shortened(p0: np.ndarray, p1: np.ndarray, length: float, cap: float | None, dims=slice(None)) -> np.ndarray:
+    """``p1`` moved back along the motion ``p0 -> p1`` (its coordinates ``dims``) so that the motion's
+    ``length`` (however the caller measures it) becomes at most ``cap`` (negative: no motion); unchanged
+    when ``cap`` is None or the motion does not go forwards."""
+    p1 = np.array(p1, float)
+    if cap is None or length <= 0 or length <= cap:
+        return p1
+    p1[dims] = p0[dims] + (p1[dims] - p0[dims]) * (max(cap, 0.0) / length)
+    return p1
+
+
 def cap_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
     """The slide's end moved back along its own direction so that its x advance is at most ``cap``."""
-    dx = float(p1[0] - p0[0])
-    if cap is None or dx <= cap or dx <= 0:
-        return p1
-    return p0 + (p1 - p0) * (max(cap, 0.0) / dx)
+    return shortened(p0, p1, float(p1[0] - p0[0]), cap)
 
 
 def seen_centre(points: np.ndarray) -> np.ndarray:
@@ -230,6 +257,40 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
     return p0, p1
 
 
+def a_grasp_side(points: np.ndarray) -> str | None:
+    """The arm that grasps A's overhang: the one on the side of the seen object's centre (``right`` at
+    y <= 0, as the expert's ``_a_grasp_arm``); None when too few points are seen."""
+    if len(points) < MIN_POINTS:
+        return None
+    return "right" if float(seen_centre(points)[1]) <= 0.0 else "left"
+
+
+def mirror_pose(p: np.ndarray, R: np.ndarray, y_centre: float) -> tuple[np.ndarray, np.ndarray]:
+    """A TCP pose mirrored across the vertical plane y = ``y_centre``: the position reflected, the
+    approach (z) and finger (y) axes reflected, x completing a right-handed frame, so a finger axis that
+    points up still points up (``tcp_rotation``'s convention for the other arm's mirrored approach)."""
+    p = np.array(p, float)
+    p[1] = 2.0 * y_centre - p[1]
+    S = np.diag([1.0, -1.0, 1.0])
+    return p, S @ np.asarray(R, float) @ np.diag([-1.0, 1.0, 1.0])
+
+
+def a_grasp_arms(learned: list[str], prob: dict[str, float], side: str | None,
+                 preapproach: bool = False) -> tuple[list[str], str | None]:  # fmt: skip
+    """(arms commanded, arm whose learned motion is mirrored onto ``side`` or None) for one of A's grasp
+    stages: the rule's arm alone, with its own learned motion, or, where the executor does not command it,
+    with the mirror image of the most active learned arm's motion.  In the ``preapproach`` the learned arms
+    stay when they include the rule's arm (the expert backs the pusher off there); with no side known,
+    the learned arms.  After it the expert commands the grasping arm only: a second learned arm (the
+    pusher, 10 cm above the object after its release) was driven down onto the object by the grasp's
+    height rule and held it on the table (``magazine_tv_guide``, ``diskcase_dvd``, seed 1003)."""
+    if side is None:
+        return learned, None
+    if side in learned:
+        return (learned if preapproach else [side]), None
+    return [side], max(learned, key=prob.get)
+
+
 def starts_at_hand(strategy: str, index: int, from_hand: bool) -> bool:
     """Whether ``contact_from_hand`` starts stage ``index`` of ``strategy`` at the commanded hand: the
     expert starts it where the hand is (A's press, slide, release, grasp, lift; B's squeeze, lift)."""
@@ -243,11 +304,10 @@ def b_from_hand(primitive: str, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     each of them; from the hand the learned 3-4 cm squeeze and 1 cm inward lift pressed 3.4 cm into a plywood
     board's sides (``board_plywood``, seed 1000) and it dropped during the hold."""
     p1 = np.array(p1, float)
-    d = p1[:2] - p0[:2]
     if primitive == "lift":
         p1[:2] = p0[:2]
-    elif primitive == "squeeze" and np.linalg.norm(d) > B_SQUEEZE:
-        p1[:2] = p0[:2] + d * (B_SQUEEZE / np.linalg.norm(d))
+    elif primitive == "squeeze":
+        p1 = shortened(p0, p1, float(np.linalg.norm(p1[:2] - p0[:2])), B_SQUEEZE, dims=slice(0, 2))
     return p1
 
 
@@ -271,15 +331,22 @@ def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
     table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
+    a_grasp: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
     whose learned gripper closes most; ``hand()``: where this arm's hand is, (3,) (called only for C's
     pinch and, with ``from_hand``, for the stages :func:`starts_at_hand` names, which then start exactly
     there: the rules' end height kept where they set one, else the learned displacement).  ``b_face``:
-    B's touch ends at the seen face (:func:`b_touch_at_face`).
+    B's touch ends at the seen face (:func:`b_touch_at_face`).  ``a_grasp``: A's pre-approach starts at the
+    hand and ends at its learned pose (``log["line"]``: the caller keeps the learned end orientation and
+    gives the line the stage's transit time); A's grasp closes without moving (``log["still"]``: the caller
+    keeps the start orientation).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
+    if a_grasp and strategy == "A" and index == A_PREAPPROACH:
+        log["line"] = True
+        return np.asarray(hand(), float).copy(), np.array(p1, float), log
     if b_face and strategy == "B" and primitive == "touch":
         p0, p1 = b_touch_at_face(p0, p1, points)
         log["b_face"] = [float(v) for v in p1[:2]]
@@ -297,6 +364,9 @@ def observed_motion(
         log["from_hand"] = True
         if strategy == "B":  # no transit relaxes the squeeze any more: the expert's squeeze length, a straight lift
             p1 = b_from_hand(primitive, p0, p1)
+    if a_grasp and strategy == "A" and primitive == "grasp":  # the expert's grasp closes where the hand is
+        p1 = p0.copy()
+        log["still"] = True
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
