@@ -249,16 +249,10 @@ class _Episode:
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
         motions, duration, heights = {}, 0.0, {}
         observed = self.policy.config.contact == "observed"
-        source, y_centre, arm_log = None, None, {}  # contact_a_grasp: the learned arm mirrored onto the rule's arm
         a_grasp = observed and self.policy.config.contact_a_grasp
+        source, y_centre, arm_log = None, None, {}  # contact_a_grasp: the learned arm mirrored onto the rule's arm
         if a_grasp and self.strategy == "A" and self.index >= A_PREAPPROACH:  # A's pre-approach and after
-            if self.index == A_PREAPPROACH:  # the side is decided once, from the cloud seen now
-                self.a_side = a_grasp_side(obs.object_points)
-            learned = arms
-            arms, source = a_grasp_arms(learned, prob, self.a_side, preapproach=self.index == A_PREAPPROACH)
-            if source is not None:
-                y_centre = float(seen_centre(obs.object_points)[1])
-            arm_log = {"a_arm": {"learned": learned, "side": self.a_side, "mirrored_from": source}}
+            arms, source, y_centre, arm_log = self._a_grasp_arms(arms, prob, obs)
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
@@ -297,6 +291,16 @@ class _Episode:
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
                          "duration": duration, **({"heights": heights} if observed else {}), **arm_log})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _a_grasp_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
+        """``contact_a_grasp`` in A's grasp stages: (arms, the learned arm mirrored onto the rule's arm or
+        None, the seen centre line's y it is mirrored across, the stage log's entry).  The side is decided
+        once, at the pre-approach, from the object cloud seen then (observed_contact.a_grasp_side)."""
+        if self.index == A_PREAPPROACH:
+            self.a_side = a_grasp_side(obs.object_points)
+        arms, source = a_grasp_arms(learned, prob, self.a_side, preapproach=self.index == A_PREAPPROACH)
+        y_centre = None if source is None else float(seen_centre(obs.object_points)[1])
+        return arms, source, y_centre, {"a_arm": {"learned": learned, "side": self.a_side, "mirrored_from": source}}
 
     def _proprio(self, obs: Observed) -> np.ndarray:
         """(16,) per arm TCP position, quaternion wxyz (forward kinematics of the observed joints) and
