@@ -264,7 +264,7 @@ def test_contact_a_grasp_needs_observed():
 
 
 def test_a_grasp_preapproach_is_a_line_from_the_hand_to_the_learned_pose():
-    from flatlab_lerobot.policies.unified.observed_contact import A_PREAPPROACH
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH
 
     cloud = _box_cloud((0.25, -0.04), (0.28, 0.2, 0.008))
     hand = np.r_[0.247, -0.033, 0.86]  # the pusher 10 cm above the magazine after its release

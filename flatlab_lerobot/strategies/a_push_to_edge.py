@@ -38,15 +38,21 @@ S_GRASP = StageSpec("grasp", 0.6, start="current")
 S_LIFT = StageSpec("lift", 1.6, speed=0.1, along="z", start="current")  # 1.6 s per A_LIFT (16 cm) of rise, at least 1.6 s
 
 
+def arm_on_side(y: float) -> str:
+    """The arm on the side of an object centred at ``y`` (the right arm at y <= 0).  The expert reads
+    ``y`` from the privileged state; the learned policy's ``contact_a_grasp`` from the object cloud."""
+    return "right" if y <= 0 else "left"
+
+
 def _a_arm(world: World, ctx: dict) -> str:
     """The arm that pushes: the one on the object's side, chosen once per episode."""
-    return ctx.setdefault("arm", "right" if world.pos[1] <= 0 else "left")
+    return ctx.setdefault("arm", arm_on_side(float(world.pos[1])))
 
 
 def _a_grasp_arm(world: World, ctx: dict) -> str:
     """The arm that grasps: the one on the side where the pushes left the object (a push can
     drift it sideways by 10-20 cm), chosen once, when the grasp begins."""
-    return ctx.setdefault("grasp_arm", "right" if world.pos[1] <= 0 else "left")
+    return ctx.setdefault("grasp_arm", arm_on_side(float(world.pos[1])))
 
 
 def _a_press_pose(world: World):
@@ -203,3 +209,4 @@ STAGES = (a_touch, a_press, a_slide, a_release) * A_PASSES + (a_preapproach, a_a
 SPECS = (S_TOUCH, S_PRESS, S_SLIDE, S_RELEASE) * A_PASSES + (S_PREAPPROACH, S_APPROACH, S_GRASP, S_LIFT, HOLD)
 """Each stage's :class:`StageSpec`: primitive name and timing (a skipped pass holds A_SKIP_HOLD instead)."""
 PASS_STAGES = 4  # stages per push pass: touch, press, slide, release
+A_PREAPPROACH = A_PASSES * PASS_STAGES  # index of the pre-approach ("move"): the grasp's stages start there

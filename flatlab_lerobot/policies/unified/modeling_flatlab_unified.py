@@ -37,6 +37,7 @@ taken out of the batch.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import mujoco
@@ -52,7 +53,6 @@ from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabE
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
-    A_PREAPPROACH,
     a_grasp_arms,
     a_grasp_side,
     mirror_pose,
@@ -64,7 +64,13 @@ from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
 from flatlab_lerobot.strategies.expert import ExpertCache
-from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES, PASS_STAGES, overhang_missing, pass_needed
+from flatlab_lerobot.strategies.a_push_to_edge import (
+    A_PASSES,
+    A_PREAPPROACH,
+    PASS_STAGES,
+    overhang_missing,
+    pass_needed,
+)
 from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home
 
 ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
@@ -256,12 +262,7 @@ class _Episode:
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
-            fk_cache: dict = {}  # the commanded hands' poses, computed once per stage and only if a rule asks
-
-            def commanded(arm: str):
-                if not fk_cache:
-                    fk_cache.update(self.expert.fk(self.q))
-                return fk_cache[arm]
+            commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
         for a in arms:
             src = source or a
             (p0, q0), (p1, q1) = poses[src]["start"], poses[src]["end"]
@@ -270,19 +271,19 @@ class _Episode:
             if source is not None:
                 (p0, R0), (p1, R1) = mirror_pose(p0, R0, y_centre), mirror_pose(p1, R1, y_centre)
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
-                hand = lambda a=a: commanded(a)[0]  # noqa: E731  the commanded hand's position
+                hand = lambda a=a: commanded_fk()[a][0]  # noqa: E731  the commanded hand's position
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
                                                      obs.table_top, obs.edge_x, a == pincher, hand,
                                                      from_hand=self.policy.config.contact_from_hand,
                                                      b_face=self.policy.config.contact_b_face,
                                                      a_grasp=a_grasp)  # fmt: skip
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
-                    R_hand = commanded(a)[1]
+                    R_hand = commanded_fk()[a][1]
                     R0, R1 = R_hand, R1 @ R0.T @ R_hand
                 if heights[a].get("still"):  # A's grasp (contact_a_grasp): the fingers close, the hand stays
                     R1 = R0
                 if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
-                    R0 = commanded(a)[1]
+                    R0 = commanded_fk()[a][1]
                     duration = max(duration, spec.transit)
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))

@@ -80,9 +80,9 @@ import numpy as np
 
 from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.strategies.a_push_to_edge import (
-    A_PASSES,
+    A_PREAPPROACH,
     A_PRESS_DEPTH,
-    PASS_STAGES,
+    arm_on_side,
     overhang_missing,
     slide_distance,
 )
@@ -98,7 +98,6 @@ from flatlab_lerobot.strategies.registry import STAGE_SPECS
 from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
 CONTACT_CHOICES = ("learned", "observed")
-A_PREAPPROACH = A_PASSES * PASS_STAGES  # index of A's pre-approach ("move"): the grasp stages start there
 FROM_HAND_STRATEGIES = ("A", "B")  # contact_from_hand: their "current" stages start at the hand (C: see above)
 B_FACE_QUANTILE = 0.5  # percentile of the seen points along the approach taken as the face (a few stray points)
 TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
@@ -128,7 +127,7 @@ def overhang_mid(points: np.ndarray, edge_x: float) -> float | None:
 
 
 def _a(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
-    if index < A_PASSES * PASS_STAGES:  # a push pass
+    if index < A_PREAPPROACH:  # a push pass
         top = object_top(points, xy)
         if top is None:
             return None, None
@@ -264,7 +263,7 @@ def a_grasp_side(points: np.ndarray) -> str | None:
     y <= 0, as the expert's ``_a_grasp_arm``); None when too few points are seen."""
     if len(points) < MIN_POINTS:
         return None
-    return "right" if float(seen_centre(points)[1]) <= 0.0 else "left"
+    return arm_on_side(float(seen_centre(points)[1]))
 
 
 def mirror_pose(p: np.ndarray, R: np.ndarray, y_centre: float) -> tuple[np.ndarray, np.ndarray]:
