@@ -68,6 +68,8 @@ class FlatLabEnvConfig(EnvConfig):
     image_size: int = 96
     # Side of the frames rendered for lerobot-eval's videos (px).
     render_size: int = 256
+    # Camera of the frames rendered for lerobot-eval's videos: any of front, top, left, right.
+    render_camera: str = "front"
     # Cameras given as observation.images.<cam>: any of front, top, left, right.
     cameras: list[str] = field(default_factory=lambda: ["front", "top"])
     # Cameras whose depth makes the point clouds (unset = --env.cameras).
@@ -133,6 +135,7 @@ class FlatLabEnvConfig(EnvConfig):
         if self.scene:
             _choice("scene", self.scene, load_scenes())
         _choice("action_mode", self.action_mode, ACTION_DIMS)
+        _choice("render_camera", self.render_camera, CAMERA_NAMES)
         for name in ("cameras", "pointcloud_cameras"):
             cams = getattr(self, name)
             if cams is None:
@@ -194,6 +197,7 @@ class FlatLabEnvConfig(EnvConfig):
             "pointcloud_cameras": tuple(self.pointcloud_cameras) if self.pointcloud_cameras else None,
             "image_size": self.image_size,
             "render_size": self.render_size,
+            "render_camera": self.render_camera,
             "n_points": self.n_points,
             "n_object_points": self.n_object_points,
             "action_mode": self.action_mode,

@@ -44,6 +44,7 @@ REPO = Path(__file__).resolve().parents[1]
         ("action_mode", "eef", "valid: joint, ee"),
         ("cameras", ["front", "side"], "valid: front, top, left, right"),
         ("pointcloud_cameras", ["ceiling"], "valid: front, top, left, right"),
+        ("render_camera", "rigth", "did you mean right"),
         ("image_size", 0, "positive integer"),
         ("n_points", -5, "positive integer"),
         ("n_object_points", 0, "positive integer"),
