@@ -13,10 +13,8 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     c_pinch_xy,
     cap_slide,
     contact_heights,
-    a_lift_end,
     object_top,
     observed_motion,
-    overhang_droop,
     overhang_mid,
     shortened,
     slide_cap,
@@ -282,47 +280,3 @@ def test_a_grasp_preapproach_is_a_line_from_the_hand_to_the_learned_pose():
     a, b, log = observed_motion("A", A_PREAPPROACH + 1, "touch", p0, p1, cloud, TABLE, EDGE, False, lambda: hand,
                                 a_grasp=True)  # fmt: skip
     assert "line" not in log  # the approach keeps its learned start (and its transit)
-
-
-def _overhanging(drape: float, n=2000, seed=0):
-    """A 30 x 20 cm object pushed 10 cm past the edge; its overhang sinks ``drape`` m per m past the edge
-    (0: rigid, its sides seen down to the table top; > 0: a sheet drooping over the edge)."""
-    pts = _box_cloud((EDGE - 0.05, 0.0), (0.3, 0.2, 0.004), n=n, seed=seed)
-    over = pts[:, 0] > EDGE
-    pts[over, 2] -= drape * (pts[over, 0] - EDGE)
-    return pts
-
-
-def test_overhang_droop_tells_a_rigid_overhang_from_a_drooping_sheet():
-    from flatlab_lerobot.policies.unified.observed_contact import A_SHEET_DROOP
-
-    assert abs(overhang_droop(_overhanging(0.0), TABLE, EDGE)) < 1e-3  # its sides seen down to the table top
-    assert overhang_droop(_overhanging(0.3), TABLE, EDGE) > A_SHEET_DROOP  # ~2.5 cm down at its far end
-    assert overhang_droop(_box_cloud((0.0, 0.0), (0.2, 0.2, 0.004)), TABLE, EDGE) is None  # nothing past the edge
-
-
-def test_a_lift_of_a_seen_rigid_object_rises_the_experts_lift_and_a_sheets_its_learned_rise():
-    from flatlab_lerobot.strategies import World
-    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, a_lift
-
-    w = World(pos=np.r_[0.25, 0.0, TABLE + 0.004], yaw=0.0, size=np.r_[0.3, 0.2, 0.008], deformable=False,
-              table_height=TABLE, edge_x=EDGE)  # fmt: skip
-    start = (np.r_[0.37, 0.02, TABLE + 0.004], np.eye(3))
-    m = next(iter(a_lift(None, w, {"left": start, "right": start}, {}, {}).motions.values()))
-    expert_rise = m.end[0][2] - m.start[0][2]
-    hand = np.r_[0.36, 0.03, TABLE + 0.004]
-    p0, p1 = np.r_[0.35, 0.02, TABLE + 0.01], np.r_[0.41, 0.025, TABLE + 0.29]  # learned: 28 cm up, 6 cm out
-    args = ("A", A_PREAPPROACH + 3, "lift", p0, p1)
-    rest = (TABLE, EDGE, True, lambda: hand)
-    a, b, log = observed_motion(*args, _overhanging(0.0), *rest, from_hand=True, a_lift=True)
-    assert b[2] - a[2] == pytest.approx(expert_rise) and abs(log["droop"]) < 1e-3
-    np.testing.assert_allclose(b[:2] - a[:2], p1[:2] - p0[:2])  # the learned drift kept
-    for cloud, a_lift_on in ((_overhanging(0.3), True), (_overhanging(0.0), False)):  # a sheet; the switch off
-        a, b, _ = observed_motion(*args, cloud, *rest, from_hand=True, a_lift=a_lift_on)
-        assert b[2] - a[2] == pytest.approx(p1[2] - p0[2])
-    np.testing.assert_array_equal(a_lift_end(p0, p1, None), p1)  # overhang unseen: learned
-
-
-def test_contact_a_lift_needs_observed():
-    with pytest.raises(ValueError, match="contact_a_lift"):
-        FlatLabUnifiedConfig(contact_a_lift=True)

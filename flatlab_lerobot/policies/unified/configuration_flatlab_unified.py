@@ -134,9 +134,6 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # learned motion of the other arm is mirrored across the object's centre line) and the pre-approach
     # runs as a Cartesian line from the hand instead of a joint-space transit (observed_contact.py)
     contact_a_grasp: bool = False
-    # with contact=observed: A's lift of an object whose seen overhang does not droop below the table top
-    # (rigid) rises the expert's 16 cm, not the learned rise of about its length (observed_contact.py)
-    contact_a_lift: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -145,7 +142,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
-        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_lift"):
+        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if not 0 <= int(self.generator_tta) <= 64:

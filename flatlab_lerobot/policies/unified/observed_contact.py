@@ -72,15 +72,6 @@ transit's joint-space path dipped the hand 9.5 cm onto it and dragged it off the
 arm by side alone); the expert's transit from its own joints arches 50 cm up instead.  After the
 pre-approach only the rule's arm moves (:func:`a_grasp_arms`), and the grasp closes where the hand is, as
 the expert's does.  Measured: docs/unified.md (stop 39).
-
-``--policy.contact_a_lift=true`` (with ``observed``): A's lift of an object whose seen overhang does not
-droop (:func:`overhang_droop` under A_SHEET_DROOP: rigid) rises the expert's ``A_LIFT`` (16 cm) instead of
-the learned rise (:func:`a_lift_end`).  The expert lifts a rigid object 16 cm and a sheet its length plus
-8 cm; the executor, which cannot tell them apart, learned about the length for both (20-34 cm), and the
-thin rigid objects pinched at their overhang tilted in the fingers on the way up, prised them apart and
-slid out during the hold (``book_comic`` seed 1000: 54 degrees, fingers 1.0 -> 1.9 cm apart, fell;
-from 16 cm it hangs at 20 degrees and holds).  The threshold from a 42-trial pilot's lift stages: rigid
-overhangs were seen within 2.5 mm of the table top (depth noise on their sides), sheets' drooped 5.4-24.6 mm.
 """
 
 from __future__ import annotations
@@ -89,7 +80,6 @@ import numpy as np
 
 from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.strategies.a_push_to_edge import (
-    A_LIFT,
     A_PREAPPROACH,
     A_PRESS_DEPTH,
     arm_on_side,
@@ -134,32 +124,6 @@ def overhang_mid(points: np.ndarray, edge_x: float) -> float | None:
     if len(over) < MIN_POINTS:
         return None
     return float(0.5 * (over[:, 2].min() + over[:, 2].max()))
-
-
-A_SHEET_DROOP = 0.004  # m: an overhang seen this far below the table top droops (a sheet); less: rigid
-
-
-def overhang_droop(points: np.ndarray, table: float, edge_x: float) -> float | None:
-    """How far (m) the seen overhang (the points past the table edge) reaches below the table top: ~0 for a
-    rigid object's overhang (its top face, some of its side), centimetres for a sheet's drooping one; None
-    when fewer than MIN_POINTS overhang."""
-    over = points[points[:, 0] > edge_x]
-    if len(over) < MIN_POINTS:
-        return None
-    return float(table - over[:, 2].min())
-
-
-def a_lift_end(p0: np.ndarray, p1: np.ndarray, droop: float | None) -> np.ndarray:
-    """A's lift ``p0 -> p1`` (``contact_a_lift``): where the seen overhang does not droop (a rigid object,
-    ``droop < A_SHEET_DROOP``) the lift rises the expert's A_LIFT, its learned horizontal drift kept; a
-    sheet's (or an unseen overhang's) lift keeps its learned rise (the expert lifts a sheet its length).
-    The executor, which cannot tell a rigid book from a sheet of its size, learned a rise of about the
-    length for both: from the 28 cm rise the pinched ``book_comic`` tilted to 54 degrees, prised the
-    fingers from 1.0 to 1.9 cm apart and fell during the hold; from 16 cm it hangs at 20 degrees."""
-    p1 = np.array(p1, float)
-    if droop is not None and droop < A_SHEET_DROOP:
-        p1[2] = p0[2] + A_LIFT
-    return p1
 
 
 def _a(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
@@ -368,7 +332,7 @@ def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
     table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
-    a_grasp: bool = False, a_lift: bool = False,
+    a_grasp: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
@@ -378,8 +342,7 @@ def observed_motion(
     B's touch ends at the seen face (:func:`b_touch_at_face`).  ``a_grasp``: A's pre-approach starts at the
     hand and ends at its learned pose (``log["line"]``: the caller keeps the learned end orientation and
     gives the line the stage's transit time); A's grasp closes without moving (``log["still"]``: the caller
-    keeps the start orientation).  ``a_lift``: A's lift of a seen-rigid object rises A_LIFT
-    (:func:`a_lift_end`; ``log["droop"]``).
+    keeps the start orientation).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
     if a_grasp and strategy == "A" and index == A_PREAPPROACH:
@@ -405,9 +368,6 @@ def observed_motion(
     if a_grasp and strategy == "A" and primitive == "grasp":  # the expert's grasp closes where the hand is
         p1 = p0.copy()
         log["still"] = True
-    if a_lift and strategy == "A" and primitive == "lift":
-        log["droop"] = droop = overhang_droop(points, table, edge_x)
-        p1 = a_lift_end(p0, p1, droop)
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
