@@ -280,3 +280,21 @@ def test_a_grasp_preapproach_is_a_line_from_the_hand_to_the_learned_pose():
     a, b, log = observed_motion("A", A_PREAPPROACH + 1, "touch", p0, p1, cloud, TABLE, EDGE, False, lambda: hand,
                                 a_grasp=True)  # fmt: skip
     assert "line" not in log  # the approach keeps its learned start (and its transit)
+
+
+def test_contact_a_backoff_needs_a_grasp_and_is_the_experts_backoff():
+    from flatlab_lerobot.strategies import World
+    from flatlab_lerobot.strategies.a_push_to_edge import a_preapproach, pusher_backoff
+
+    with pytest.raises(ValueError, match="contact_a_backoff"):
+        FlatLabUnifiedConfig(contact="observed", contact_a_backoff=True)
+    assert FlatLabUnifiedConfig(contact="observed", contact_a_grasp=True, contact_a_backoff=True).contact_a_backoff
+    # the expert's pre-approach backs its pusher off by the same rule: the left arm pushed, the pushes left
+    # the object right of the centre, so the right arm grasps
+    w = World(pos=np.r_[0.3, -0.01, TABLE + 0.004], yaw=0.0, size=np.r_[0.3, 0.2, 0.008], deformable=False,
+              table_height=TABLE, edge_x=EDGE)  # fmt: skip
+    hand = np.r_[0.25, 0.05, 0.86]
+    poses = {a: (hand, np.eye(3)) for a in ("left", "right")}
+    prim = a_preapproach(None, w, poses, {"left": 0.01, "right": 0.01}, {"arm": "left"})
+    np.testing.assert_allclose(prim.motions["left"].end[0], pusher_backoff("left", hand))
+    np.testing.assert_allclose(pusher_backoff("right", hand) - hand, [-0.05, -0.15, 0.05])

@@ -153,7 +153,9 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
      {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true"},
      {"strategy": "C", "contact": "observed"},
-     {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"}],
+     {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
+     {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
+      "contact_a_backoff": "true", "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -183,7 +185,13 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         chosen = [d for d in pols[0].decisions[0] if "a_arm" in d]
         assert chosen and all(d["a_arm"]["side"] in ("left", "right") for d in chosen), pols[0].decisions[0]
         assert all(d["arms"] == [d["a_arm"]["side"]] for d in chosen[1:])  # after the pre-approach: that arm only
-        assert all(h.get("line") for h in chosen[0]["heights"].values())
+        side, pre = chosen[0]["a_arm"]["side"], chosen[0]["heights"]
+        assert pre[side].get("line")
+        if overrides.get("contact_a_backoff"):  # the other arm backed off from its hand, as the expert's pusher
+            other = next(a for a in pre if a != side)
+            assert chosen[0]["arms"] == ["left", "right"] and "backoff" in pre[other], chosen[0]
+        else:
+            assert all(h.get("line") for h in pre.values())
     if overrides.get("contact_b_face"):  # B's touch was moved to the seen faces
         assert all("b_face" in h for h in touch[0]["heights"].values())
     if c:  # the squeeze was stretched to the seen centre, the pinching hand came down at the table

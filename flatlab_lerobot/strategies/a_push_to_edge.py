@@ -44,6 +44,13 @@ def arm_on_side(y: float) -> str:
     return "right" if y <= 0 else "left"
 
 
+def pusher_backoff(arm: str, hand) -> np.ndarray:
+    """Where the pushing ``arm``'s hand at ``hand`` backs off to before the other arm grasps: towards its
+    own base (5 cm back, 15 cm to its side, 5 cm up), out of the grasping arm's and the lifted object's
+    way.  The expert's pre-approach; the learned policy's with ``contact_a_backoff``."""
+    return np.asarray(hand, float) + vec(-0.05, 0.15 if arm == "left" else -0.15, 0.05)
+
+
 def _a_arm(world: World, ctx: dict) -> str:
     """The arm that pushes: the one on the object's side, chosen once per episode."""
     return ctx.setdefault("arm", arm_on_side(float(world.pos[1])))
@@ -174,8 +181,8 @@ def a_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     p = end - A_APPROACH_LEN * a + vec(0, 0, 0.12)  # straight above the approach start
     motions = {arm: ArmMotion((p, R), (p, R), (A_OPEN, A_OPEN))}
     pusher = _a_arm(w, ctx)
-    if pusher != arm:  # the pushing hand backs off towards its own base, out of the grasping arm's way
-        back = poses[pusher][0] + vec(-0.05, 0.15 if pusher == "left" else -0.15, 0.05)
+    if pusher != arm:
+        back = pusher_backoff(pusher, poses[pusher][0])
         motions[pusher] = ArmMotion((back, poses[pusher][1]), (back, poses[pusher][1]), (grip[pusher],) * 2)
     return S_PREAPPROACH.make(motions)
 

@@ -134,6 +134,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # learned motion of the other arm is mirrored across the object's centre line) and the pre-approach
     # runs as a Cartesian line from the hand instead of a joint-space transit (observed_contact.py)
     contact_a_grasp: bool = False
+    # with contact_a_grasp: at A's pre-approach the other arm (the pusher) backs off from where its hand is,
+    # as the expert's does (5 cm back, 15 cm to its side, 5 cm up), out of the lifted object's way
+    contact_a_backoff: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -145,6 +148,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
+        if self.contact_a_backoff and not self.contact_a_grasp:
+            raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if self.generator_tta:

@@ -70,6 +70,7 @@ from flatlab_lerobot.strategies.a_push_to_edge import (
     PASS_STAGES,
     overhang_missing,
     pass_needed,
+    pusher_backoff,
 )
 from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home
 
@@ -288,10 +289,26 @@ class _Episode:
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
+        if a_grasp and self.policy.config.contact_a_backoff and self.strategy == "A" and self.index == A_PREAPPROACH:
+            arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
                          "duration": duration, **({"heights": heights} if observed else {}), **arm_log})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
+        """``contact_a_backoff`` at A's pre-approach: the arm off the seen side (the pusher) backs off from
+        its commanded hand as the expert's does (``pusher_backoff``), replacing any learned motion of it;
+        otherwise it stays where its release left it, 10-13 cm above the object, and the lifted object
+        rose into its fingers.  Returns (arms, duration)."""
+        if self.a_side is None:
+            return arms, duration
+        pusher = next(a for a in ARMS if a != self.a_side)
+        hand, R = commanded_fk()[pusher]
+        back = pusher_backoff(pusher, hand)
+        motions[pusher] = ArmMotion((np.array(hand, float), R), (back, R), (obs.fingers[pusher],) * 2)
+        heights[pusher] = {"backoff": [float(v) for v in back]}
+        return sorted({*arms, pusher}), max(duration, spec.transit, spec.for_motion(hand, back))
 
     def _a_grasp_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
         """``contact_a_grasp`` in A's grasp stages: (arms, the learned arm mirrored onto the rule's arm or
