@@ -72,6 +72,16 @@ transit's joint-space path dipped the hand 9.5 cm onto it and dragged it off the
 arm by side alone); the expert's transit from its own joints arches 50 cm up instead.  After the
 pre-approach only the rule's arm moves (:func:`a_grasp_arms`), and the grasp closes where the hand is, as
 the expert's does.  Measured: docs/unified.md (stop 39).
+
+``--policy.contact_a_backoff=true`` (with ``contact_a_grasp``): at the pre-approach the arm off the seen
+side (the pusher, where the two differ) backs off from its commanded hand as the expert's does
+(``a_push_to_edge.pusher_backoff``: 5 cm back, 15 cm to its own side, 5 cm up; the policy's
+``_pusher_backoff``), replacing any learned motion of it.  Left where its release put it, 13 cm above
+the table, it was in the lift's way: thin rigid objects pinched at their overhang tilted on the way up
+(``book_comic`` seed 1000: to 54 degrees, prising the pinching fingers from 1.0 to 1.9 cm apart) and slid
+out during the hold; lifted only 16 cm they stayed wedged against its fingers (both arms touched the
+object in 3 of 4 traced holds).  With the back-off the learned lift held in 11 of 15 such trials (3
+before).  Measured: docs/unified.md (stop 40).
 """
 
 from __future__ import annotations
