@@ -410,9 +410,8 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         s = st.get(name) if name else None
         k_n = desk(s.record) if _has(s) else None
         per = desk_objects(s.record) if _has(s) else None
-        text = (ctx.stages[name].report.get("text") if name else None) or {  # a stage's own text first
-            "oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
-            "GPT-4o": "GPT-4o + the same executor"}.get(label) or ROW_TEXT[label]  # fmt: skip
+        text = {"oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
+                "GPT-4o": "GPT-4o + the same executor"}.get(label) or ROW_TEXT[label]  # fmt: skip
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
