@@ -299,8 +299,7 @@ class _Episode:
     def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
         """``contact_a_backoff`` at A's pre-approach: the arm off the seen side (the pusher) backs off from
         its commanded hand as the expert's does (``pusher_backoff``), replacing any learned motion of it;
-        otherwise it stays where its release left it, 10-13 cm above the object, and the lifted object
-        rose into its fingers.  Returns (arms, duration)."""
+        otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.  Returns (arms, duration)."""
         if self.a_side is None:
             return arms, duration
         pusher = next(a for a in ARMS if a != self.a_side)
@@ -308,7 +307,7 @@ class _Episode:
         back = pusher_backoff(pusher, hand)
         motions[pusher] = ArmMotion((np.array(hand, float), R), (back, R), (obs.fingers[pusher],) * 2)
         heights[pusher] = {"backoff": [float(v) for v in back]}
-        return sorted({*arms, pusher}), max(duration, spec.transit, spec.for_motion(hand, back))
+        return [a for a in ARMS if a in arms or a == pusher], max(duration, spec.transit, spec.for_motion(hand, back))
 
     def _a_grasp_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
         """``contact_a_grasp`` in A's grasp stages: (arms, the learned arm mirrored onto the rule's arm or
