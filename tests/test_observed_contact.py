@@ -298,3 +298,45 @@ def test_contact_a_backoff_needs_a_grasp_and_is_the_experts_backoff():
     prim = a_preapproach(None, w, poses, {"left": 0.01, "right": 0.01}, {"arm": "left"})
     np.testing.assert_allclose(prim.motions["left"].end[0], pusher_backoff("left", hand))
     np.testing.assert_allclose(pusher_backoff("right", hand) - hand, [-0.05, -0.15, 0.05])
+
+
+def _draped_sheet(length=0.22, width=0.18, over=0.06, droop=0.03, n=2000, seed=0):
+    """What cameras see of a sheet pushed ``over`` past the edge: flat on the table, its overhang hanging
+    ``droop`` below the table top at its front edge."""
+    rng = np.random.default_rng(seed)
+    u = rng.random(n) * length  # along the sheet from its back edge
+    x = EDGE - (length - over) + u
+    past = np.clip((x - EDGE) / over, 0, 1)
+    z = TABLE + 0.003 - droop * past**2
+    x = np.where(x > EDGE, EDGE + (x - EDGE) * 0.8, x)  # the hanging part is foreshortened in x
+    return np.c_[x, -width / 2 + rng.random(n) * width, z]
+
+
+def test_a_sheet_lift_rises_a_seen_sheets_length_and_leaves_a_rigid_lift_learned():
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, A_SHEET_LIFT_MARGIN, STAGES, a_lift
+
+    with pytest.raises(ValueError, match="contact_a_sheet_lift"):
+        FlatLabUnifiedConfig(contact_a_sheet_lift=True)
+    i = STAGES.index(a_lift)
+    assert i > A_PREAPPROACH
+    hand = np.r_[0.33, -0.02, 0.755]
+    p0, p1 = hand.copy(), hand + [0.05, 0.0, 0.2]  # a learned 20 cm rise
+    sheet = _draped_sheet()
+    a, b, log = observed_motion("A", i, "lift", p0, p1, sheet, TABLE, EDGE, True, lambda: hand, from_hand=True,
+                                a_sheet_lift=True)  # fmt: skip
+    assert log["sheet_lift"]["droop"] == pytest.approx(0.03 - 0.003, abs=0.002)  # its lowest point below the table top
+    # the sheet's length (22 cm, its longer side) + the expert's margin, from the hand; the drift kept
+    assert b[2] - a[2] == pytest.approx(0.22 + A_SHEET_LIFT_MARGIN, abs=0.02)
+    np.testing.assert_allclose(b[:2], a[:2] + [0.05, 0.0])
+    _, b_off, log_off = observed_motion("A", i, "lift", p0, p1, sheet, TABLE, EDGE, True, lambda: hand, from_hand=True)
+    assert b_off[2] - hand[2] == pytest.approx(0.2) and "sheet_lift" not in log_off  # the switch off: learned
+    # a rigid board pushed over the edge: its overhang is seen at the table top, the learned rise stays
+    board = _box_cloud((EDGE - 0.05, 0.0), (0.26, 0.2, 0.01))
+    _, b, log = observed_motion("A", i, "lift", p0, p1, board, TABLE, EDGE, True, lambda: hand, from_hand=True,
+                                a_sheet_lift=True)  # fmt: skip
+    assert log["sheet_lift"]["droop"] < 0.004 and "rise" not in log["sheet_lift"]
+    assert b[2] - hand[2] == pytest.approx(0.2)
+    # a learned rise already higher than the sheet's needs stays
+    _, b, _ = observed_motion("A", i, "lift", p0, hand + [0, 0, 0.5], sheet, TABLE, EDGE, True, lambda: hand,
+                              from_hand=True, a_sheet_lift=True)  # fmt: skip
+    assert b[2] - hand[2] == pytest.approx(0.5)

@@ -137,6 +137,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with contact_a_grasp: at A's pre-approach the other arm (the pusher) backs off from where its hand is,
     # as the expert's does (5 cm back, 15 cm to its side, 5 cm up), out of the lifted object's way
     contact_a_backoff: bool = False
+    # with contact=observed: A's lift of an object whose seen overhang droops (a sheet) rises at least the
+    # seen length + 8 cm, as the expert lifts a sheet (observed_contact.py)
+    contact_a_sheet_lift: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -145,7 +148,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
-        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp"):
+        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:

@@ -277,7 +277,8 @@ class _Episode:
                                                      obs.table_top, obs.edge_x, a == pincher, hand,
                                                      from_hand=self.policy.config.contact_from_hand,
                                                      b_face=self.policy.config.contact_b_face,
-                                                     a_grasp=a_grasp)  # fmt: skip
+                                                     a_grasp=a_grasp,
+                                                     a_sheet_lift=self.policy.config.contact_a_sheet_lift)  # fmt: skip
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
                     R_hand = commanded_fk()[a][1]
                     R0, R1 = R_hand, R1 @ R0.T @ R_hand

@@ -82,6 +82,16 @@ the table, it was in the lift's way: thin rigid objects pinched at their overhan
 out during the hold; lifted only 16 cm they stayed wedged against its fingers (both arms touched the
 object in 3 of 4 traced holds).  With the back-off the learned lift held in 11 of 15 such trials (3
 before).  Measured: docs/unified.md (stop 40).
+
+``--policy.contact_a_sheet_lift=true`` (with ``observed``): A's lift of an object whose seen overhang droops
+(:func:`overhang_droop` at least A_SHEET_DROOP: a sheet) rises at least the seen sheet's length plus the
+expert's ``A_SHEET_LIFT_MARGIN`` (:func:`sheet_lift_end`), as the expert lifts a sheet held by its front edge
+(``a_push_to_edge.a_lift``: its length + 8 cm); a rigid object's lift (and an unseen overhang's) keeps its
+learned rise.  The executor, which cannot tell a sheet from a rigid object of its outline, learned a rise
+of about the length: sheets lifted by A still touched the table at the hold (``mousepad_small`` seed 1002
+hung 4.3 cm clear with its front edge pinched, the rest of it on the table).  The droop threshold from a
+42-trial pilot's lift stages (stop 40): rigid overhangs were seen within 2.5 mm of the table top (depth
+noise on their sides), sheets' drooped 5.4-24.6 mm.
 """
 
 from __future__ import annotations
@@ -92,6 +102,7 @@ from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.strategies.a_push_to_edge import (
     A_PREAPPROACH,
     A_PRESS_DEPTH,
+    A_SHEET_LIFT_MARGIN,
     arm_on_side,
     overhang_missing,
     slide_distance,
@@ -134,6 +145,39 @@ def overhang_mid(points: np.ndarray, edge_x: float) -> float | None:
     if len(over) < MIN_POINTS:
         return None
     return float(0.5 * (over[:, 2].min() + over[:, 2].max()))
+
+
+A_SHEET_DROOP = 0.004  # m: an overhang seen this far below the table top droops (a sheet); less: rigid
+
+
+def overhang_droop(points: np.ndarray, table: float, edge_x: float) -> float | None:
+    """How far (m) the seen overhang (the points past the table edge) reaches below the table top: ~0 for a
+    rigid object's overhang (its top face, some of its side), centimetres for a sheet's drooping one; None
+    when fewer than MIN_POINTS overhang."""
+    over = points[points[:, 0] > edge_x]
+    if len(over) < MIN_POINTS:
+        return None
+    return float(table - over[:, 2].min())
+
+
+def seen_sheet_length(points: np.ndarray, droop: float) -> float:
+    """A drooping sheet's length (m) as seen: its extent along y, or along x plus the ``droop`` of the part
+    that hangs past the edge (foreshortened in x), whichever is longer -- the expert's ``max(size x, y)``."""
+    ext = points[:, :2].max(0) - points[:, :2].min(0)
+    return float(max(ext[0] + droop, ext[1]))
+
+
+def sheet_lift_end(p0: np.ndarray, p1: np.ndarray, points: np.ndarray, table: float, edge_x: float):
+    """A's lift ``p0 -> p1`` (``contact_a_sheet_lift``): where the seen overhang droops (a sheet,
+    ``droop >= A_SHEET_DROOP``) the lift rises at least the seen length + A_SHEET_LIFT_MARGIN, its learned
+    horizontal drift kept; otherwise unchanged.  Returns (end, the stage log's entry)."""
+    p1 = np.array(p1, float)
+    droop = overhang_droop(points, table, edge_x)
+    log = {"droop": droop}
+    if droop is not None and droop >= A_SHEET_DROOP:
+        log["rise"] = rise = seen_sheet_length(points, droop) + A_SHEET_LIFT_MARGIN
+        p1[2] = max(p1[2], p0[2] + rise)
+    return p1, log
 
 
 def _a(index: int, primitive: str, points: np.ndarray, xy, table: float, edge_x: float):
@@ -342,7 +386,7 @@ def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
     table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
-    a_grasp: bool = False,
+    a_grasp: bool = False, a_sheet_lift: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
@@ -352,7 +396,8 @@ def observed_motion(
     B's touch ends at the seen face (:func:`b_touch_at_face`).  ``a_grasp``: A's pre-approach starts at the
     hand and ends at its learned pose (``log["line"]``: the caller keeps the learned end orientation and
     gives the line the stage's transit time); A's grasp closes without moving (``log["still"]``: the caller
-    keeps the start orientation).
+    keeps the start orientation).  ``a_sheet_lift``: A's lift of a seen sheet rises at least its length + 8 cm
+    (:func:`sheet_lift_end`; ``log["sheet_lift"]``).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
     if a_grasp and strategy == "A" and index == A_PREAPPROACH:
@@ -378,6 +423,8 @@ def observed_motion(
     if a_grasp and strategy == "A" and primitive == "grasp":  # the expert's grasp closes where the hand is
         p1 = p0.copy()
         log["still"] = True
+    if a_sheet_lift and strategy == "A" and primitive == "lift":
+        p1, log["sheet_lift"] = sheet_lift_end(p0, p1, points, table, edge_x)
     if strategy == "A" and primitive == "slide":
         cap = slide_cap(points, edge_x)
         log["slide"] = {"learned_dx": float(p1[0] - p0[0]), "cap": cap}
