@@ -34,7 +34,8 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "ACT": "ACT (not in the paper)",
             "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch, "
                                          "A's and B's continuing stages from the hand, B's touch at the seen face, "
-                                         "A's grasp on the seen side's arm, its pusher backed off (not in the paper)"}  # fmt: skip
+                                         "A's grasp on the seen side's arm, its pusher backed off, a seen sheet lifted its "
+                                         "length + 8 cm (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor
@@ -410,8 +411,9 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         s = st.get(name) if name else None
         k_n = desk(s.record) if _has(s) else None
         per = desk_objects(s.record) if _has(s) else None
-        text = {"oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
-                "GPT-4o": "GPT-4o + the same executor"}.get(label) or ROW_TEXT[label]  # fmt: skip
+        text = (ctx.stages[name].report.get("text") if name else None) or {  # a stage's own text: what it ran
+            "oracle": "scripted oracle (expert, labels)", "FlatLab": "FlatLab (flatlab_unified)",
+            "GPT-4o": "GPT-4o + the same executor"}.get(label) or ROW_TEXT[label]  # fmt: skip
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
