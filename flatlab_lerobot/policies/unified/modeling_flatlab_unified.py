@@ -300,7 +300,8 @@ class _Episode:
     def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
         """``contact_a_backoff`` at A's pre-approach: the arm off the seen side (the pusher) backs off from
         its commanded hand as the expert's does (``pusher_backoff``), replacing any learned motion of it;
-        otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.  Returns (arms, duration)."""
+        otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.
+        Returns (arms, duration)."""
         if self.a_side is None:
             return arms, duration
         pusher = next(a for a in ARMS if a != self.a_side)

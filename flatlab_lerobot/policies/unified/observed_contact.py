@@ -141,12 +141,16 @@ def object_top(points: np.ndarray, xy: np.ndarray | None = None) -> float | None
     return float(np.percentile(points[:, 2], TOP_QUANTILE))
 
 
+def _overhang(points: np.ndarray, edge_x: float) -> np.ndarray | None:
+    """The seen points past the table edge; None when fewer than MIN_POINTS overhang."""
+    over = points[points[:, 0] > edge_x]
+    return over if len(over) >= MIN_POINTS else None
+
+
 def overhang_mid(points: np.ndarray, edge_x: float) -> float | None:
     """Mid height (m) of the seen points past the table edge; None when fewer than MIN_POINTS overhang."""
-    over = points[points[:, 0] > edge_x]
-    if len(over) < MIN_POINTS:
-        return None
-    return float(0.5 * (over[:, 2].min() + over[:, 2].max()))
+    over = _overhang(points, edge_x)
+    return None if over is None else float(0.5 * (over[:, 2].min() + over[:, 2].max()))
 
 
 A_SHEET_DROOP = 0.004  # m: an overhang seen this far below the table top droops (a sheet); less: rigid
@@ -156,10 +160,8 @@ def overhang_droop(points: np.ndarray, table: float, edge_x: float) -> float | N
     """How far (m) the seen overhang (the points past the table edge) reaches below the table top: ~0 for a
     rigid object's overhang (its top face, some of its side), centimetres for a sheet's drooping one; None
     when fewer than MIN_POINTS overhang."""
-    over = points[points[:, 0] > edge_x]
-    if len(over) < MIN_POINTS:
-        return None
-    return float(table - over[:, 2].min())
+    over = _overhang(points, edge_x)
+    return None if over is None else float(table - over[:, 2].min())
 
 
 def seen_sheet_length(points: np.ndarray, droop: float) -> float:
