@@ -8,6 +8,8 @@ from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatL
 from flatlab_lerobot.policies.unified.observed_contact import (
     apply_heights,
     apply_xy,
+    b_align_turn,
+    b_aligned,
     b_from_hand,
     b_touch_at_face,
     c_pinch_xy,
@@ -16,9 +18,11 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_top,
     observed_motion,
     overhang_mid,
+    seen_sides,
     shortened,
     slide_cap,
     squeeze_end,
+    turned_about_z,
 )
 from flatlab_lerobot.strategies.a_push_to_edge import a_press, a_slide, a_touch, slide_distance
 from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
@@ -149,7 +153,7 @@ def test_shortened_caps_only_the_named_coordinates_and_never_reverses():
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
-    for flag in ("contact_from_hand", "contact_b_face"):
+    for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed"):
         with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
             FlatLabUnifiedConfig(**{flag: True})
         assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)
@@ -197,6 +201,75 @@ def test_b_squeeze_from_the_hand_is_the_experts_length_and_the_lift_straight():
     np.testing.assert_array_equal(b_from_hand("squeeze", p0, short), short)  # a shorter one stays
     lift = b_from_hand("lift", p0, p0 + [-0.002, -0.011, 0.15])
     assert lift == pytest.approx(p0 + [0, 0, 0.15])
+
+
+def test_b_steady_marks_bs_squeeze_and_lift_from_the_hand_only():
+    """contact_b_steady: B's squeeze and lift started at the hand are marked ``steady`` (the caller ends them in
+    the hand's orientation); B's touch, A's stages and a run without contact_from_hand are not."""
+    with pytest.raises(ValueError, match="contact_b_steady=true needs --policy.contact_from_hand=true"):
+        FlatLabUnifiedConfig(contact="observed", contact_b_steady=True)
+    assert FlatLabUnifiedConfig(contact="observed", contact_from_hand=True, contact_b_steady=True).contact_b_steady
+    board = _box_cloud((0.0, 0.0), (0.36, 0.25, 0.022))
+    hand = np.r_[0.01, 0.15, 0.765]
+    p0, p1 = np.r_[0.012, 0.149, 0.77], np.r_[0.011, 0.124, 0.77]
+    for strategy, index, prim, from_hand, want in (("B", 2, "squeeze", True, True), ("B", 3, "lift", True, True),
+                                                    ("B", 1, "touch", True, False), ("B", 2, "squeeze", False, False),
+                                                    ("A", 2, "slide", True, False)):  # fmt: skip
+        _, _, log = observed_motion(strategy, index, prim, p0, p1, board, TABLE, EDGE, False, lambda: hand,
+                                    from_hand=from_hand, b_steady=True)  # fmt: skip
+        assert log.get("steady", False) is want, (strategy, prim, from_hand, log)
+    _, _, log = observed_motion("B", 2, "squeeze", p0, p1, board, TABLE, EDGE, False, lambda: hand, from_hand=True)
+    assert "steady" not in log  # the switch off: the learned turn stays
+
+
+def test_b_align_lays_the_fingers_along_the_seen_side_of_a_turned_board():
+    """contact_b_align: a board turned -18.7 degrees (board_oak_shelf, seed 1001) and a learned finger axis 6.7
+    degrees off its side: the turn is the 6.7 degrees back onto the side, whichever way the hand faces; the
+    fingers then lie along it.  An unseen object or a vertical finger axis: no turn."""
+    from flatlab_lerobot.sim.robot import tcp_rotation
+
+    yaw = np.radians(-18.7)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    board = _box_cloud((0.0, 0.0), (0.40, 0.18, 0.035))
+    board[:, :2] = board[:, :2] @ rot.T + [0.013, -0.044]
+    along = rot @ [1.0, 0.0]  # the board's long side
+    sides = seen_sides(board)
+    assert min(abs(float(s @ along)) for s in sides) < 0.02 and max(abs(float(s @ along)) for s in sides) > 0.999
+    for sign in (1.0, -1.0):
+        off = np.radians(6.7)
+        y = sign * np.r_[np.cos(yaw + off), np.sin(yaw + off), 0.0]
+        R = tcp_rotation([0, 0, -1], y)
+        turn = b_align_turn(R, board)
+        assert np.degrees(turn) == pytest.approx(-6.7, abs=0.5)
+        assert abs(float(turned_about_z(R, turn)[:2, 1] @ along)) == pytest.approx(1.0, abs=1e-4)
+    assert b_align_turn(tcp_rotation([0, 0, -1], [0, 1, 0]), board[:3]) is None  # unseen
+    assert b_align_turn(tcp_rotation([1, 0, 0], [0, 0, 1]), board) is None  # fingers vertical
+
+
+def test_b_aligned_turns_the_touch_about_the_seen_centre_so_it_approaches_the_side_square_on():
+    """A square album turned -21.7 degrees (album_wedding, seed 1004) and a learned touch straight along -y with
+    the fingers along x: turned about the seen centre, the touch approaches along the album's own axis and
+    keeps its distance from the centre; the face rule then stops it FINGER_HALF_WIDTH outside the side (not
+    outside the corner, 4.5 cm further out along y)."""
+    from flatlab_lerobot.sim.robot import tcp_rotation
+
+    yaw = np.radians(-21.7)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    centre = np.r_[-0.05, -0.037]
+    album = _box_cloud((0.0, 0.0), (0.30, 0.30, 0.05))
+    album[:, :2] = album[:, :2] @ rot.T + centre
+    R = tcp_rotation([0, 0, -1], [1, 0, 0])
+    p0, p1 = np.r_[-0.035, 0.192, 0.764], np.r_[-0.035, 0.154, 0.764]
+    a0, a1, R0, R1, turn = b_aligned(p0, p1, R, R, album)
+    assert np.degrees(turn) == pytest.approx(-21.7, abs=1.0)
+    c = album[:, :2].mean(0)
+    for p, a in ((p0, a0), (p1, a1)):
+        assert np.linalg.norm(a[:2] - c) == pytest.approx(np.linalg.norm(p[:2] - c)) and a[2] == p[2]
+    d = (a1[:2] - a0[:2]) / np.linalg.norm(a1[:2] - a0[:2])
+    assert abs(float(d @ (rot @ [0.0, 1.0]))) > 0.999  # along the album's own axis
+    _, end = b_touch_at_face(a0, a1, album)
+    assert float((end[:2] - centre) @ (rot @ [0.0, 1.0])) == pytest.approx(0.15 + FINGER_HALF_WIDTH, abs=0.004)
+    assert b_aligned(p0, p1, R, R, album[:3])[4] is None  # unseen: unchanged
 
 
 def test_b_touch_ends_just_outside_the_seen_face_it_approaches():

@@ -152,7 +152,10 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     "overrides",
     [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
      {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true"},
+     {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true",
+      "contact_b_steady": "true", "contact_b_align": "true"},
      {"strategy": "C", "contact": "observed"},
+     {"strategy": "C", "contact": "observed", "contact_grip_closed": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
@@ -199,6 +202,91 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         press = [d for d in posed if d["primitive"] == "press"]
         assert press, [d.get("primitive") for d in pols[0].decisions[0]]
         assert any(h["observed"][1] is not None for h in press[0]["heights"].values())
+
+
+@pytest.mark.parametrize("steady", [False, True])
+def test_contact_b_steady_keeps_the_clamping_hands_orientation(tiny, monkeypatch, steady):
+    """With contact_b_steady, B's squeeze and lift end in the orientation they start in, the commanded hand's
+    (contact_from_hand); without it the tiny untrained executor's learned turn is applied."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, real = [], M._Episode._primitive
+
+    def spy(self, obs):
+        prim = real(self, obs)
+        posed.append(prim)
+        return prim
+
+    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    pol = _load(tiny["artifact"], strategy="B", contact="observed", contact_from_hand="true",
+                contact_b_steady=str(steady).lower())  # fmt: skip
+    _rollout([pol], steps=60)
+    clamped = [p for p in posed if p.name in ("squeeze", "lift")]
+    assert [p.name for p in clamped] == ["squeeze", "lift"], [p.name for p in posed]
+    turns = [float(np.abs(m.end[1] - m.start[1]).max()) for p in clamped for m in p.motions.values()]
+    if steady:
+        assert max(turns) == 0.0
+    else:
+        assert max(turns) > 1e-3  # the learned change of orientation
+
+
+@pytest.mark.parametrize("align", [False, True])
+def test_contact_b_align_turns_the_touch_onto_the_seen_side(tiny, monkeypatch, align):
+    """With contact_b_align, B's touch ends with its fingers along a side of the seen object's outline (the
+    reference box), turned by the logged angle; without it the learned orientation stays."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+    from flatlab_lerobot.policies.unified.observed_contact import seen_sides
+
+    posed, real = [], M._Episode._primitive
+
+    def spy(self, obs):
+        prim = real(self, obs)
+        posed.append((prim, self.log[-1], seen_sides(obs.object_points)))
+        return prim
+
+    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    pol = _load(tiny["artifact"], strategy="B", contact="observed", contact_b_align=str(align).lower())
+    _rollout([pol], steps=25)
+    prim, log, sides = next(p for p in posed if p[0].name == "touch")
+    for arm, m in prim.motions.items():
+        y = m.end[1][:2, 1] / np.linalg.norm(m.end[1][:2, 1])
+        along = max(abs(float(y @ s)) for s in sides)
+        if align:
+            assert along == pytest.approx(1.0, abs=1e-6) and "b_align_deg" in log["heights"][arm], log
+        else:
+            assert along < 1.0 - 1e-6 and "b_align_deg" not in log["heights"][arm]
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monkeypatch, closed):
+    """With contact_grip_closed, C's pinching hand closes to 0 in the grasp and its lift holds 0, as the expert's;
+    without it the tiny untrained executor's widths stay (not all 0)."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, real = [], M._Episode._primitive
+
+    def spy(self, obs):
+        prim = real(self, obs)
+        posed.append((prim, self.log[-1]))
+        return prim
+
+    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    pol = _load(tiny["artifact"], strategy="C", contact="observed", contact_grip_closed=str(closed).lower())
+    _rollout([pol], steps=200)
+    staged = {p.name: (p, log) for p, log in posed if p.name in ("grasp", "lift")}
+    assert set(staged) == {"grasp", "lift"}, [p.name for p, _ in posed]
+    widths = []
+    for name, (prim, log) in staged.items():
+        pinch = [a for a, h in log["heights"].items() if h.get("closed")]
+        if closed:
+            assert len(pinch) == 1, log
+            g = prim.motions[pinch[0]].gripper
+            assert g[1] == 0.0 and (name == "grasp" or g[0] == 0.0)
+        else:
+            assert not pinch
+        widths += [w for m in prim.motions.values() for w in (m.gripper if name == "lift" else m.gripper[1:])]
+    if not closed:
+        assert max(widths) > 0.0
 
 
 @pytest.mark.parametrize("from_hand", [False, True])

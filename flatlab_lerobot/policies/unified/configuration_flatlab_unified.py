@@ -140,6 +140,15 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with contact=observed: A's lift of an object whose seen overhang droops (a sheet) rises at least the
     # seen length + 8 cm, as the expert lifts a sheet (observed_contact.py)
     contact_a_sheet_lift: bool = False
+    # with contact_from_hand: B's squeeze and lift keep the hand's orientation (translations only), as the
+    # expert's do; the learned turn while the hands clamp the object is dropped (observed_contact.py)
+    contact_b_steady: bool = False
+    # with contact=observed: B's touch turned about the vertical so the fingers lie along the seen object's
+    # side, as the expert's lie along the object's side (observed_contact.py)
+    contact_b_align: bool = False
+    # with contact=observed: the pinching hand of A's and C's grasp closes fully and its lift keeps it
+    # closed, as the expert's do (observed_contact.py)
+    contact_grip_closed: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -148,11 +157,14 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
-        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift"):
+        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift", "contact_b_align",
+                     "contact_grip_closed"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
+        if self.contact_b_steady and not self.contact_from_hand:
+            raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (the hand's orientation)")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if self.generator_tta:

@@ -38,6 +38,7 @@ taken out of the batch.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -53,8 +54,10 @@ from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabE
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
+    GRIP_CLOSED_STRATEGIES,
     a_grasp_arms,
     a_grasp_side,
+    b_aligned,
     mirror_pose,
     object_footprint_x,
     observed_motion,
@@ -271,6 +274,9 @@ class _Episode:
             R0, R1 = _rotmat(q0[0]), _rotmat(q1[0])
             if source is not None:
                 (p0, R0), (p1, R1) = mirror_pose(p0, R0, y_centre), mirror_pose(p1, R1, y_centre)
+            turn = None
+            if observed and self.policy.config.contact_b_align and self.strategy == "B" and spec.primitive == "touch":
+                p0, p1, R0, R1, turn = b_aligned(p0, p1, R0, R1, pts)  # the fingers along the seen side
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
                 hand = lambda a=a: commanded_fk()[a][0]  # noqa: E731  the commanded hand's position
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
@@ -278,16 +284,23 @@ class _Episode:
                                                      from_hand=self.policy.config.contact_from_hand,
                                                      b_face=self.policy.config.contact_b_face,
                                                      a_grasp=a_grasp,
-                                                     a_sheet_lift=self.policy.config.contact_a_sheet_lift)  # fmt: skip
+                                                     a_sheet_lift=self.policy.config.contact_a_sheet_lift,
+                                                     b_steady=self.policy.config.contact_b_steady)  # fmt: skip
+                if turn is not None:
+                    heights[a]["b_align_deg"] = math.degrees(turn)
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
                     R_hand = commanded_fk()[a][1]
                     R0, R1 = R_hand, R1 @ R0.T @ R_hand
-                if heights[a].get("still"):  # A's grasp (contact_a_grasp): the fingers close, the hand stays
-                    R1 = R0
+                if heights[a].get("still") or heights[a].get("steady"):  # A's grasp (contact_a_grasp): the
+                    R1 = R0  # fingers close, the hand stays; B's squeeze, lift (contact_b_steady): no turn
                 if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
                     R0 = commanded_fk()[a][1]
                     duration = max(duration, spec.transit)
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
+            if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
+                    and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
+                g0, g1 = (g0 if spec.primitive == "grasp" else 0.0), 0.0
+                heights[a]["closed"] = True
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
         if a_grasp and self.policy.config.contact_a_backoff and self.strategy == "A" and self.index == A_PREAPPROACH:

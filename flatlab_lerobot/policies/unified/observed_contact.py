@@ -94,6 +94,34 @@ hung 4.3 cm clear with its front edge pinched, the rest of it on the table).  Th
 noise on their sides), sheets' drooped 5.4-24.6 mm.  Measured (docs/unified.md, stop 41; paired on one build):
 418 -> 426 of 520 trials lifted, 8 sheets won and none lost; it acted in 3 of 157 rigid A lifts (a CD and a
 cork coaster, their small round overhangs seen drooping), which rose 2-4 cm higher and held as before.
+
+``--policy.contact_b_steady=true`` (with ``contact_from_hand``): B's squeeze and lift keep the orientation the
+hand has at their start (its commanded orientation: translations only), as the expert's ``b_squeeze`` and
+``b_lift`` do; without it they end in the hand's orientation turned by the learned change (0.5-12 degrees).
+A turn of hands that clamp a board shifts its finger pads on the faces: the boards B lifted slid down and
+pivoted out during the hold (``laptop_15in`` seed 1000: lifted 11.5 cm clear, then tilted about the
+squeeze axis, its lower edge on the table 2 s later and dropped; ``album_large_leather``, ``board_cork``,
+``painting_seascape`` alike, against the true pose).  With the orientation kept all four held; the
+gripper opened fully instead (the expert's ``B_OPEN``) held one of the four.
+
+``--policy.contact_b_align=true`` (with ``observed``): B's touch turned about the vertical so that the finger axis
+lies along the nearest side of the seen outline (:func:`b_align_turn`: the smallest rectangle around the seen
+points from above), as the expert's fingers lie along the object's side; the touch's positions turn with it
+about the seen centre (:func:`b_aligned`), so it approaches at right angles to that side and ``contact_b_face``
+finds the side, not a corner: with the fingers turned alone, the touch of a square album turned 22 degrees
+(``album_wedding`` seed 1004) stopped at its corner's reach and the squeeze closed 1-1.5 cm short of both
+sides.  The learned
+fingers stood 4-7 degrees off the side of a board turned 18 degrees (``board_oak_shelf``, ``board_pine_plank``
+seed 1001): with ``contact_b_steady`` alone the board pivoted out of the hands during the hold; where the
+learned turn of the squeeze happened to align the hands, it held.  With the touch aligned, both held.
+
+``--policy.contact_grip_closed=true`` (with ``observed``): in A's and C's grasp the pinching hand (the commanded
+arm whose learned gripper closes most) closes to 0 and its lift keeps the gripper at 0, as the expert's
+``a_grasp`` / ``c_pinch`` close to 0 and ``a_lift`` / ``c_lift`` hold at 0; the learned opening widths are
+dropped there (the other arm's stay learned).  The learned C pinch closed to 2.7 cm and its lift opened from
+0.1 to 1.1 cm on the way up: ``skirt_pencil`` (seed 1000) hung 23 cm from the pinch, then slid out of it and
+fell back onto the table (the stage log against the true pose); closed, it held (so did ``skirt_a_line``
+seed 1002; ``scarf_silk_blue`` and ``fabric_linen`` pinched no fold either way).
 """
 
 from __future__ import annotations
@@ -121,6 +149,7 @@ from flatlab_lerobot.strategies.registry import STAGE_SPECS
 from flatlab_lerobot.strategies.world import FINGER_HALF_WIDTH, FINGER_TIP_BELOW_TCP
 
 CONTACT_CHOICES = ("learned", "observed")
+GRIP_CLOSED_STRATEGIES = ("A", "C")  # contact_grip_closed: the strategies whose grasp pinches (B squeezes open)
 FROM_HAND_STRATEGIES = ("A", "B")  # contact_from_hand: their "current" stages start at the hand (C: see above)
 B_FACE_QUANTILE = 0.5  # percentile of the seen points along the approach taken as the face (a few stray points)
 TOP_QUANTILE = 95  # percentile of the cloud's z taken as the object's top (a few stray points above)
@@ -387,10 +416,58 @@ def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple
     return p0, p1
 
 
+def seen_sides(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The horizontal directions (unit, (2,)) of the two sides of the seen object's outline: the edges of the
+    smallest rectangle around its points seen from above (``cv2.minAreaRect``); None when it is unseen."""
+    import cv2
+
+    if len(points) < MIN_POINTS:
+        return None
+    box = cv2.boxPoints(cv2.minAreaRect(np.ascontiguousarray(points[:, :2], dtype=np.float32))).astype(float)
+    sides = [box[1] - box[0], box[2] - box[1]]
+    if min(float(np.linalg.norm(e)) for e in sides) < 1e-6:
+        return None
+    return sides[0] / np.linalg.norm(sides[0]), sides[1] / np.linalg.norm(sides[1])
+
+
+def b_align_turn(R: np.ndarray, points: np.ndarray) -> float | None:
+    """The turn about the vertical (rad) that lays the finger axis (the hand's y, ``R[:, 1]``) of B's touch
+    along the nearest side of the seen outline (:func:`seen_sides`), as the expert's fingers lie along the
+    object's side (``b_squeeze._b_targets``: the finger axis at right angles to the squeeze axis); None when
+    the object is unseen or the finger axis is vertical."""
+    sides = seen_sides(points)
+    y = np.asarray(R, float)[:2, 1]
+    if sides is None or np.linalg.norm(y) < 1e-6:
+        return None
+    y = y / np.linalg.norm(y)
+    d = max((s * e for e in sides for s in (1.0, -1.0)), key=lambda c: float(c @ y))
+    return float(np.arctan2(y[0] * d[1] - y[1] * d[0], float(y @ d)))
+
+
+def turned_about_z(R: np.ndarray, angle: float) -> np.ndarray:
+    """``R`` turned by ``angle`` (rad) about the world's vertical."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.asarray(R, float)
+
+
+def b_aligned(p0: np.ndarray, p1: np.ndarray, R0: np.ndarray, R1: np.ndarray, points: np.ndarray):
+    """B's learned touch ``(p0, R0) -> (p1, R1)`` turned about the vertical through the seen centre by
+    :func:`b_align_turn` (its fingers then lie along the seen side, its approach at right angles to that
+    side, where the learned approach was at right angles to the learned fingers).  Returns
+    ``(p0, p1, R0, R1, turn)``; unchanged with ``turn`` None when there is nothing to align to."""
+    turn = b_align_turn(R1, points)
+    if turn is None:
+        return p0, p1, R0, R1, None
+    c = seen_centre(points)
+    Rz = turned_about_z(np.eye(3), turn)
+    p0, p1 = (np.r_[c[:2] + Rz[:2, :2] @ (np.asarray(p[:2], float) - c[:2]), p[2]] for p in (p0, p1))
+    return p0, p1, turned_about_z(R0, turn), turned_about_z(R1, turn), turn
+
+
 def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
     table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
-    a_grasp: bool = False, a_sheet_lift: bool = False,
+    a_grasp: bool = False, a_sheet_lift: bool = False, b_steady: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
@@ -401,7 +478,8 @@ def observed_motion(
     hand and ends at its learned pose (``log["line"]``: the caller keeps the learned end orientation and
     gives the line the stage's transit time); A's grasp closes without moving (``log["still"]``: the caller
     keeps the start orientation).  ``a_sheet_lift``: A's lift of a seen sheet rises at least its length + 8 cm
-    (:func:`sheet_lift_end`; ``log["sheet_lift"]``).
+    (:func:`sheet_lift_end`; ``log["sheet_lift"]``).  ``b_steady`` (with ``from_hand``): B's squeeze and lift
+    keep the hand's orientation (``log["steady"]``: the caller ends them in the start orientation).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
     if a_grasp and strategy == "A" and index == A_PREAPPROACH:
@@ -424,6 +502,8 @@ def observed_motion(
         log["from_hand"] = True
         if strategy == "B":  # no transit relaxes the squeeze any more: the expert's squeeze length, a straight lift
             p1 = b_from_hand(primitive, p0, p1)
+            if b_steady:  # and no turn of the clamping hands, as the expert's squeeze and lift
+                log["steady"] = True
     if a_grasp and strategy == "A" and primitive == "grasp":  # the expert's grasp closes where the hand is
         p1 = p0.copy()
         log["still"] = True
