@@ -35,7 +35,8 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch, "
                                          "A's and B's continuing stages from the hand, B's touch at the seen face, "
                                          "A's grasp on the seen side's arm, its pusher backed off, a seen sheet lifted its "
-                                         "length + 8 cm (not in the paper)"}  # fmt: skip
+                                         "length + 8 cm, B's hands steady and along the seen side, the pinch kept closed "
+                                         "(not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor
