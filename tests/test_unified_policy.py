@@ -634,6 +634,47 @@ def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
     assert ep.stage == "hold" and len(ep.attempts) == 3 and ep.strategy is None
 
 
+@pytest.mark.parametrize("retry", [False, True])
+def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_place(tiny, monkeypatch, retry):
+    """retry_next_strategy (with clear_all): an attempt on the object seen where the last one started takes the
+    generator's most probable strategy not yet tried there; all three tried, from the top again; an object seen
+    elsewhere (the next one, or this one pushed away) starts afresh.  Without it every attempt asks again."""
+    pol = _load(tiny["artifact"], clear_all="true", retry_next_strategy=str(retry).lower())
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+    ep = _Episode(pol, None, None)
+    cell = np.r_[0.75, 0.6, np.zeros(5)]
+
+    def seen(x, y):
+        return Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[x, y, 0.76] + np.random.default_rng(0).normal(0, 0.01, (K, 3)))
+
+    here, moved = seen(0.1, -0.2), seen(0.1, -0.08)
+    got = [ep._next_strategy(o) for o in (here, here, here, here, moved, moved)]
+    assert got == (["B", "A", "C", "B", "B", "A"] if retry else ["B"] * 6)
+    if retry:
+        assert [d["retry"]["same_object"] for d in ep.log] == [False, True, True, True, False, True]
+    with pytest.raises(ValueError, match="retry_next_strategy=true needs --policy.clear_all=true"):
+        FlatLabUnifiedConfig(retry_next_strategy=True)
+
+
+def test_rank_strategies_orders_the_generators_probabilities(tiny, monkeypatch):
+    """rank_strategies: A, B, C by the generator's probability for the cloud it reads, so its first is the
+    generator's own argmax (choose_strategy, unchanged)."""
+    pol = _load(tiny["artifact"])
+    cloud = _batch(_env().reset(seed=0)[0])["observation.object_pointcloud"][0].numpy()
+    inputs, real = [], pol.generator.predict_logits
+
+    def spy(batch, tta=None):
+        inputs.append(batch)
+        return real(batch, tta)
+
+    monkeypatch.setattr(pol.generator, "predict_logits", spy)
+    ranked = pol.rank_strategies(cloud)
+    probs = real(inputs[0]).softmax(-1)[0].tolist()
+    assert sorted(ranked) == ["A", "B", "C"]
+    assert [probs["ABC".index(s)] for s in ranked] == sorted(probs, reverse=True)
+    assert ranked[0] == pol.generator.predict_strategy(inputs[0])[0] == pol.choose_strategy(cloud)
+
+
 def test_stage_specs_name_the_primitives_the_expert_poses():
     """The executor is conditioned on STAGE_SPECS' primitive names; the primitive set recorded the
     names of the primitives the expert's stage functions returned: they must be the same."""

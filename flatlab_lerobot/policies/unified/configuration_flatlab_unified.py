@@ -118,6 +118,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # shows now (the next object, or the same one after a failed attempt), while it lies on the table
     clear_all: bool = False
     settle_s: float = 1.0
+    # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
+    # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
+    retry_next_strategy: bool = False
     # learned: every pose as the executor predicts it (the paper's method); observed: the heights of the
     # stages that touch the object (A's press passes and side grasp, B's squeeze) and the length of A's
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
@@ -163,6 +166,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
+        if self.retry_next_strategy and not self.clear_all:
+            raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (retries happen on the desk)")
         if self.contact_b_steady and not self.contact_from_hand:
             raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (the hand's orientation)")
         if not 0 <= int(self.generator_tta) <= 64:

@@ -51,7 +51,7 @@ from torch import Tensor, nn
 from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
 from flatlab_lerobot.policies import distinct_indices, fps_indices, seen_points
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
-from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
+from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import STRATEGY_LETTERS, FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     GRIP_CLOSED_STRATEGIES,
@@ -78,6 +78,7 @@ from flatlab_lerobot.strategies.a_push_to_edge import (
 from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home
 
 ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
+RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to the last attempt's is the same object
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
 
 
@@ -147,6 +148,8 @@ class _Episode:
         self.obs: Observed | None = None
         self.started = False  # the current attempt has its strategy
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
+        self.tried: list[str] = []  # retry_next_strategy: the strategies tried on the object seen at tried_at
+        self.tried_at: np.ndarray | None = None  # its seen centre (x, y) when the last attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
 
     def act(self, obs: Observed) -> np.ndarray:
@@ -159,7 +162,7 @@ class _Episode:
                 self.stage = "hold"  # nothing (more) on the table to start on
                 return self.last
             if self.strategy is None:
-                self.strategy = self.policy.choose_strategy(obs.object_cloud)
+                self.strategy = self._next_strategy(obs)
             self.started = True
             self.attempts.append(self.strategy)
         n_stages = len(STRATEGIES[self.strategy])
@@ -222,6 +225,24 @@ class _Episode:
         last = self.last if last is None else last
         for _ in range(round(self.policy.config.settle_s / self.policy.config.control_dt)):
             yield "hold", last
+
+    def _next_strategy(self, obs: Observed) -> str:
+        """The generator's strategy; with ``retry_next_strategy``, when the object cloud is seen where the last
+        attempt started (within RETRY_SAME_OBJECT: the same object, left on the table), its most probable
+        strategy not yet tried there (all three tried: from the top again)."""
+        if not self.policy.config.retry_next_strategy:
+            return self.policy.choose_strategy(obs.object_cloud)
+        pts = obs.object_points
+        here = seen_centre(pts)[:2] if len(pts) else None
+        same = here is not None and self.tried_at is not None and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
+        if not same or len(self.tried) >= 3:
+            self.tried = []
+        ranked = self.policy.rank_strategies(obs.object_cloud)
+        choice = next(s for s in ranked if s not in self.tried)
+        self.log.append({"retry": {"same_object": bool(same), "tried": list(self.tried), "ranked": ranked, "chosen": choice}})
+        self.tried.append(choice)
+        self.tried_at = here
+        return choice
 
     def _restart(self) -> None:
         """Start a new attempt from the joints commanded last (the strategy is chosen again)."""
@@ -404,9 +425,15 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         """Batch element ``i``'s kinematic model (IK, FK, primitive runner) of the observed cell."""
         return self._experts.get(i, cell)
 
-    @torch.no_grad()
     def choose_strategy(self, object_cloud: np.ndarray) -> str:
-        """The generator's strategy (A/B/C) for one object cloud (K, 3): its distinct seen points (the env pads
+        """The generator's strategy (A/B/C) for one object cloud (K, 3): the most probable of
+        :meth:`rank_strategies`."""
+        return self.rank_strategies(object_cloud)[0]
+
+    @torch.no_grad()
+    def rank_strategies(self, object_cloud: np.ndarray) -> list[str]:
+        """The generator's strategies (A/B/C), most probable first, for one object cloud (K, 3) read as: its
+        distinct seen points (the env pads
         a cloud it sees fewer points of by repeating them, and fills an unseen one with zeros), farthest-point
         sampled to ``generator_cloud_points`` when there are more, as the strategy set's clouds are FPS
         samples of the object's pixels.  The repeats would shift the cloud's mean, the centre of the
@@ -419,7 +446,8 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         if n and len(pts) > n:
             pts = pts[fps_indices(pts, n)]
         x = torch.as_tensor(pts, dtype=torch.float32, device=dev)[None]
-        return self.generator.predict_strategy({GENERATOR_INPUT: x}, tta=self.config.generator_tta or None)[0]
+        logits = self.generator.predict_logits({GENERATOR_INPUT: x}, tta=self.config.generator_tta or None)[0]
+        return [STRATEGY_LETTERS[int(i)] for i in torch.argsort(logits, descending=True, stable=True)]
 
     @staticmethod
     def observed(batch: dict[str, Tensor]) -> list[Observed]:
