@@ -364,8 +364,8 @@ def test_executor_tta_reaches_every_stage_call(tiny):
 def test_generator_tta_reaches_the_strategy_choice_and_leaves_the_generator_config(tiny):
     pol = _load(tiny["artifact"], generator_tta=4)
     seen = []
-    orig = pol.generator.predict_strategy
-    pol.generator.predict_strategy = lambda batch, tta=None: (seen.append(tta), orig(batch, tta))[1]
+    orig = pol.generator.predict_logits
+    pol.generator.predict_logits = lambda batch, tta=None: (seen.append(tta), orig(batch, tta))[1]
     _rollout([pol], steps=2)
     assert seen == [4] and pol.generator.config.tta == 1  # passed per call; the generator's own value untouched
 
@@ -376,8 +376,8 @@ def test_generator_reads_each_seen_object_point_once(tiny):
     one of them, which moved the cloud's mean (the generator's centre; Train S 73 % against 97 %)."""
     pol = _load(tiny["artifact"], generator_cloud_points=48)
     fed = []
-    orig = pol.generator.predict_strategy
-    pol.generator.predict_strategy = lambda batch, tta=None: (fed.append(next(iter(batch.values()))[0]), orig(batch, tta))[1]
+    orig = pol.generator.predict_logits
+    pol.generator.predict_logits = lambda batch, tta=None: (fed.append(next(iter(batch.values()))[0]), orig(batch, tta))[1]
     rng = np.random.default_rng(0)
     few = rng.normal(size=(20, 3)) * [0.1, 0.1, 0.01] + [0.0, 0.0, 0.76]
     order = rng.permutation(20)
@@ -645,7 +645,8 @@ def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_p
     cell = np.r_[0.75, 0.6, np.zeros(5)]
 
     def seen(x, y):
-        return Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[x, y, 0.76] + np.random.default_rng(0).normal(0, 0.01, (K, 3)))
+        noise = np.random.default_rng(0).normal(0, 0.01, (K, 3))
+        return Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[x, y, 0.76] + noise)
 
     here, moved = seen(0.1, -0.2), seen(0.1, -0.08)
     got = [ep._next_strategy(o) for o in (here, here, here, here, moved, moved)]

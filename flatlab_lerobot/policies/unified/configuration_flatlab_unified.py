@@ -160,16 +160,16 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.strategy: must be one of {list(STRATEGY_CHOICES)}, got {self.strategy!r}")
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
-        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift", "contact_b_align",
-                     "contact_grip_closed"):
+        for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift",
+                     "contact_b_align", "contact_grip_closed"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if self.retry_next_strategy and not self.clear_all:
-            raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (retries happen on the desk)")
+            raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
         if self.contact_b_steady and not self.contact_from_hand:
-            raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (the hand's orientation)")
+            raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (hand orientation)")
         if not 0 <= int(self.generator_tta) <= 64:
             raise ValueError(f"--policy.generator_tta: must be in [0, 64] (0: the generator's own), got {self.generator_tta}")
         if self.generator_tta:

@@ -4,7 +4,7 @@ one state machine per batch element (as ``flatlab_scripted`` runs the scripted e
 Per episode of batch element ``i``, on what the robot observes only:
 
 1. **strategy** (first step): argmax of the generator on ``observation.object_pointcloud``
-   (``FlatLabStrategyPolicy.predict_strategy``: its own centring / unit-sphere scaling / size
+   (``FlatLabStrategyPolicy.predict_logits``: its own centring / unit-sphere scaling / size
    embedding), unless ``config.strategy`` fixes it.
 2. **each stage** ``k`` of ``strategies.STRATEGIES[strategy]``, when the previous one has finished:
    the executor's poses from the scene cloud observed *now* (``observation.pointcloud``), the object
@@ -234,12 +234,14 @@ class _Episode:
             return self.policy.choose_strategy(obs.object_cloud)
         pts = obs.object_points
         here = seen_centre(pts)[:2] if len(pts) else None
-        same = here is not None and self.tried_at is not None and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
+        same = here is not None and self.tried_at is not None
+        same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
         if not same or len(self.tried) >= 3:
             self.tried = []
         ranked = self.policy.rank_strategies(obs.object_cloud)
         choice = next(s for s in ranked if s not in self.tried)
-        self.log.append({"retry": {"same_object": bool(same), "tried": list(self.tried), "ranked": ranked, "chosen": choice}})
+        self.log.append({"retry": {"same_object": bool(same), "tried": list(self.tried), "ranked": ranked,
+                                   "chosen": choice}})  # fmt: skip
         self.tried.append(choice)
         self.tried_at = here
         return choice
