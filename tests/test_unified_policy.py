@@ -204,25 +204,32 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         assert any(h["observed"][1] is not None for h in press[0]["heights"].values())
 
 
-@pytest.mark.parametrize("steady", [False, True])
-def test_contact_b_steady_keeps_the_clamping_hands_orientation(tiny, monkeypatch, steady):
-    """With contact_b_steady, B's squeeze and lift end in the orientation they start in, the commanded hand's
-    (contact_from_hand); without it the tiny untrained executor's learned turn is applied."""
+def _posed_stages(monkeypatch) -> list:
+    """Every stage the unified state machine poses from now on, as ``(Primitive, its stage-log entry, the
+    observation it was posed from)``, in order."""
     from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
 
     posed, real = [], M._Episode._primitive
 
     def spy(self, obs):
         prim = real(self, obs)
-        posed.append(prim)
+        posed.append((prim, self.log[-1], obs))
         return prim
 
     monkeypatch.setattr(M._Episode, "_primitive", spy)
+    return posed
+
+
+@pytest.mark.parametrize("steady", [False, True])
+def test_contact_b_steady_keeps_the_clamping_hands_orientation(tiny, monkeypatch, steady):
+    """With contact_b_steady, B's squeeze and lift end in the orientation they start in, the commanded hand's
+    (contact_from_hand); without it the tiny untrained executor's learned turn is applied."""
+    posed = _posed_stages(monkeypatch)
     pol = _load(tiny["artifact"], strategy="B", contact="observed", contact_from_hand="true",
                 contact_b_steady=str(steady).lower())  # fmt: skip
     _rollout([pol], steps=60)
-    clamped = [p for p in posed if p.name in ("squeeze", "lift")]
-    assert [p.name for p in clamped] == ["squeeze", "lift"], [p.name for p in posed]
+    clamped = [p for p, _, _ in posed if p.name in ("squeeze", "lift")]
+    assert [p.name for p in clamped] == ["squeeze", "lift"], [p.name for p, _, _ in posed]
     turns = [float(np.abs(m.end[1] - m.start[1]).max()) for p in clamped for m in p.motions.values()]
     if steady:
         assert max(turns) == 0.0
@@ -234,20 +241,13 @@ def test_contact_b_steady_keeps_the_clamping_hands_orientation(tiny, monkeypatch
 def test_contact_b_align_turns_the_touch_onto_the_seen_side(tiny, monkeypatch, align):
     """With contact_b_align, B's touch ends with its fingers along a side of the seen object's outline (the
     reference box), turned by the logged angle; without it the learned orientation stays."""
-    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
     from flatlab_lerobot.policies.unified.observed_contact import seen_sides
 
-    posed, real = [], M._Episode._primitive
-
-    def spy(self, obs):
-        prim = real(self, obs)
-        posed.append((prim, self.log[-1], seen_sides(obs.object_points)))
-        return prim
-
-    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    posed = _posed_stages(monkeypatch)
     pol = _load(tiny["artifact"], strategy="B", contact="observed", contact_b_align=str(align).lower())
     _rollout([pol], steps=25)
-    prim, log, sides = next(p for p in posed if p[0].name == "touch")
+    prim, log, obs = next(p for p in posed if p[0].name == "touch")
+    sides = seen_sides(obs.object_points)
     for arm, m in prim.motions.items():
         y = m.end[1][:2, 1] / np.linalg.norm(m.end[1][:2, 1])
         along = max(abs(float(y @ s)) for s in sides)
@@ -261,20 +261,11 @@ def test_contact_b_align_turns_the_touch_onto_the_seen_side(tiny, monkeypatch, a
 def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monkeypatch, closed):
     """With contact_grip_closed, C's pinching hand closes to 0 in the grasp and its lift holds 0, as the expert's;
     without it the tiny untrained executor's widths stay (not all 0)."""
-    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
-
-    posed, real = [], M._Episode._primitive
-
-    def spy(self, obs):
-        prim = real(self, obs)
-        posed.append((prim, self.log[-1]))
-        return prim
-
-    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    posed = _posed_stages(monkeypatch)
     pol = _load(tiny["artifact"], strategy="C", contact="observed", contact_grip_closed=str(closed).lower())
     _rollout([pol], steps=200)
-    staged = {p.name: (p, log) for p, log in posed if p.name in ("grasp", "lift")}
-    assert set(staged) == {"grasp", "lift"}, [p.name for p, _ in posed]
+    staged = {p.name: (p, log) for p, log, _ in posed if p.name in ("grasp", "lift")}
+    assert set(staged) == {"grasp", "lift"}, [p.name for p, _, _ in posed]
     widths = []
     for name, (prim, log) in staged.items():
         pinch = [a for a, h in log["heights"].items() if h.get("closed")]
