@@ -14,6 +14,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     b_touch_at_face,
     c_pinch_xy,
     cap_slide,
+    full_slide,
     contact_heights,
     object_top,
     observed_motion,
@@ -140,6 +141,25 @@ def test_slide_is_capped_by_the_experts_distance_on_the_seen_cloud():
     np.testing.assert_array_equal(cap_slide(p0, short, cap), short)  # a shorter learned slide stays
 
 
+def test_full_slide_goes_the_experts_distance_straight_along_x():
+    """contact_a_slide_full: a learned slide that stops short, or veers, goes the whole expert's distance for
+    the seen cloud, straight along +x from where it starts (the expert's slide), at the height it was given;
+    an unseen object keeps the learned slide; through ``observed_motion`` only with the switch."""
+    disc = _box_cloud((0.15, 0.0), (0.12, 0.12, 0.002))
+    cap = slide_cap(disc, EDGE)
+    p0 = np.r_[0.1, 0.02, 0.76]
+    short = p0 + np.r_[0.3 * cap, 0.01, -0.001]
+    np.testing.assert_allclose(full_slide(p0, short, cap), [0.1 + cap, 0.02, 0.759])
+    np.testing.assert_array_equal(full_slide(p0, short, None), short)
+    hand = np.r_[0.1, 0.02, 0.80]
+    _, b, log = observed_motion("A", 2, "slide", p0, short, disc, TABLE, EDGE, False, lambda: hand,
+                                from_hand=True, a_slide_full=True)  # fmt: skip
+    assert b[0] - hand[0] == pytest.approx(cap) and b[1] == pytest.approx(hand[1])
+    assert log["slide"]["cap"] == pytest.approx(cap)
+    _, b0, _ = observed_motion("A", 2, "slide", p0, short, disc, TABLE, EDGE, False, lambda: hand, from_hand=True)
+    assert b0[0] - hand[0] == pytest.approx(0.3 * cap)  # without the switch the short learned slide stays
+
+
 def test_shortened_caps_only_the_named_coordinates_and_never_reverses():
     p0, p1 = np.r_[0.0, 0.0, 0.8], np.r_[0.03, 0.04, 0.7]  # 5 cm horizontally, 10 cm down
     xy = shortened(p0, p1, 0.05, 0.025, dims=slice(0, 2))
@@ -153,7 +173,8 @@ def test_shortened_caps_only_the_named_coordinates_and_never_reverses():
 def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
-    for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed"):
+    for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed",
+                 "contact_a_slide_full"):
         with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
             FlatLabUnifiedConfig(**{flag: True})
         assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)

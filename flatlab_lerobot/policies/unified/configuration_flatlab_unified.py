@@ -152,6 +152,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with contact=observed: the pinching hand of A's and C's grasp closes fully and its lift keeps it
     # closed, as the expert's do (observed_contact.py)
     contact_grip_closed: bool = False
+    # with contact=observed: A's slide goes the expert's whole slide_distance for the overhang the cloud still
+    # misses, straight along +x, instead of the learned slide capped at it (observed_contact.py)
+    contact_a_slide_full: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -161,7 +164,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift",
-                     "contact_b_align", "contact_grip_closed"):
+                     "contact_b_align", "contact_grip_closed", "contact_a_slide_full"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
