@@ -157,6 +157,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "contact": "observed"},
      {"strategy": "C", "contact": "observed", "contact_grip_closed": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
+     {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_slide_full": "true",
+      "clear_all": "true", "quick_retry": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
 )
@@ -623,6 +625,35 @@ def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
     for _ in range(5):
         ep.act(_desk_observed(sim, bin_cloud))
     assert ep.stage == "hold" and len(ep.attempts) == 3 and ep.strategy is None
+
+
+@pytest.mark.parametrize("quick", [False, True])
+def test_quick_retry_goes_home_at_once_when_the_lift_visibly_failed(tiny, quick):
+    """quick_retry (with clear_all): when the final hold is about to begin and the object cloud still lies on the
+    table, the arms go home at once (no 2.6-s hold, no settle) and the next attempt starts; without it they hold,
+    go home and settle first.  An object held aloft is held either way."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
+    pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5, quick_retry=str(quick).lower())
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
+    n = len(STRATEGIES["B"])
+    ep.act(_desk_observed(sim))  # the first stage starts
+    ep.actions, ep.index, ep.lift_arms = None, n - 2, ("left", "right")  # the lift has just ended
+    steps = 0
+    while len(ep.attempts) < 2:
+        ep.act(_desk_observed(sim))
+        steps += 1
+    hold = round(STAGE_SPECS["B"][n - 1].seconds() / 0.1)
+    assert steps - 1 == (HOME_STEPS if quick else hold + HOME_STEPS + 5)
+    assert [d.get("quick_retry") for d in ep.log if "quick_retry" in d] == ([True] if quick else [])
+    # aloft: the hold runs
+    ep.actions, ep.after, ep.index, ep.started, ep.attempts = None, None, n - 2, True, ["B"]
+    ep.act(_desk_observed(sim, np.array([0.0, 0.0, 0.1])))
+    assert ep.index == n - 1 and ep.after is None
+    with pytest.raises(ValueError, match="quick_retry=true needs --policy.clear_all=true"):
+        FlatLabUnifiedConfig(quick_retry=True)
 
 
 @pytest.mark.parametrize("retry", [False, True])

@@ -121,6 +121,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
     # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
     retry_next_strategy: bool = False
+    # with clear_all: when the object cloud is not aloft as the final hold begins (the lift visibly failed),
+    # skip the hold and the settle and go home at once, to retry sooner
+    quick_retry: bool = False
     # learned: every pose as the executor predicts it (the paper's method); observed: the heights of the
     # stages that touch the object (A's press passes and side grasp, B's squeeze) and the length of A's
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
@@ -171,6 +174,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if self.retry_next_strategy and not self.clear_all:
             raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
+        if self.quick_retry and not self.clear_all:
+            raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
         if self.contact_b_steady and not self.contact_from_hand:
             raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (hand orientation)")
         if not 0 <= int(self.generator_tta) <= 64:

@@ -187,6 +187,9 @@ class _Episode:
             self.index += 1
             if self._skip_pass(obs):
                 continue
+            if self._failed_before_hold(obs, n_stages):  # quick_retry: nothing aloft to hold, go home now
+                self.after = self._after_hold(obs, settle=False)
+                continue
             self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip)
 
     def _emit(self, steps) -> bool:
@@ -203,13 +206,26 @@ class _Episode:
         pts = obs.object_points
         return bool(len(pts)) and float(pts[:, 2].max()) > obs.table_top - ON_TABLE_BELOW
 
-    def _after_hold(self, obs: Observed):
+    @staticmethod
+    def _aloft(obs: Observed) -> bool:
+        pts = obs.object_points
+        return bool(len(pts)) and float(pts[:, 2].min()) > obs.table_top + ALOFT_CLEARANCE
+
+    def _failed_before_hold(self, obs: Observed, n_stages: int) -> bool:
+        """``quick_retry`` (with ``clear_all``): the final hold is about to begin and the object cloud is not
+        aloft -- the lift visibly failed, and arms that stand still will not lift it."""
+        if not (self.policy.config.quick_retry and self.index == n_stages - 1) or self._aloft(obs):
+            return False
+        self.log.append({"index": self.index, "quick_retry": True})
+        return True
+
+    def _after_hold(self, obs: Observed, settle: bool = True):
         """After the final hold: if the object cloud is aloft, carry it past the usable edge with the
         arms that lifted it and let go (``tasks.clear_desk.carry_and_release``: the expert's carry, planned
         on the kinematic model from the observed cloud and cell instead of the simulation); else go home.
-        Then hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
+        Then (``settle``) hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
         pts = obs.object_points
-        aloft = bool(len(pts)) and float(pts[:, 2].min()) > obs.table_top + ALOFT_CLEARANCE
+        aloft = self._aloft(obs)
         arms = self.lift_arms or ARMS
         self.log.append({"index": self.index, "after": "carry" if aloft else "home", "arms": list(arms)})
         if aloft:
@@ -223,7 +239,7 @@ class _Episode:
             last = step[1]
             yield step
         last = self.last if last is None else last
-        for _ in range(round(self.policy.config.settle_s / self.policy.config.control_dt)):
+        for _ in range(round(self.policy.config.settle_s / self.policy.config.control_dt) if settle else 0):
             yield "hold", last
 
     def _next_strategy(self, obs: Observed) -> str:
