@@ -7,6 +7,7 @@ import pytest
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     apply_heights,
+    a_touch_xy,
     apply_xy,
     b_align_turn,
     b_aligned,
@@ -160,6 +161,35 @@ def test_full_slide_goes_the_experts_distance_straight_along_x():
     assert b0[0] - hand[0] == pytest.approx(0.3 * cap)  # without the switch the short learned slide stays
 
 
+def test_a_touch_comes_down_at_the_experts_press_point_on_the_seen_object():
+    """contact_a_touch: A's push-pass touch comes straight down 2 cm behind the seen object's centre (the expert's
+    press point), whatever the learned touch aimed at; its heights are the rule's; the approach (also a
+    "touch") and an unseen object keep the learned motion; through ``observed_motion`` only with the switch."""
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, A_PRESS_BEHIND, _a_press_pose
+
+    disc = _box_cloud((0.05, -0.1), (0.12, 0.12, 0.004))
+    xy = a_touch_xy(disc)
+    np.testing.assert_allclose(xy, disc[:, :2].mean(0) - [A_PRESS_BEHIND, 0.0])
+    assert a_touch_xy(disc[:3]) is None
+    p0, p1 = np.r_[-0.12, 0.06, 0.85], np.r_[-0.13, 0.08, 0.76]  # a learned touch aimed 20 cm away
+    a, b, log = observed_motion("A", 0, "touch", p0, p1, disc, TABLE, EDGE, False, None, a_touch=True)
+    np.testing.assert_allclose([a[:2], b[:2]], [xy, xy])
+    assert log["a_touch"] == pytest.approx(list(xy))
+    z = contact_heights("A", 0, "touch", disc, xy, TABLE, EDGE)
+    assert (a[2], b[2]) == pytest.approx(z)
+    from flatlab_lerobot.strategies import World
+
+    w = World(pos=np.r_[0.05, -0.1, TABLE + 0.002], yaw=0.0, size=np.r_[0.12, 0.12, 0.004], deformable=False,
+              table_height=TABLE, edge_x=EDGE)  # fmt: skip
+    ctx: dict = {}
+    t = a_touch(None, w, {}, {}, ctx).motions[ctx["arm"]]  # the expert's touch: straight down at its press point
+    np.testing.assert_allclose([t.start[0][:2], t.end[0][:2]], [_a_press_pose(w)[0][:2]] * 2)
+    assert t.end[0][:2] == pytest.approx([0.05 - A_PRESS_BEHIND, -0.1])
+    for index, switch, pts in ((0, False, disc), (A_PREAPPROACH + 1, True, disc), (0, True, disc[:3])):
+        a, b, _ = observed_motion("A", index, "touch", p0, p1, pts, TABLE, EDGE, False, None, a_touch=switch)
+        np.testing.assert_allclose([a[:2], b[:2]], [p0[:2], p1[:2]])
+
+
 def test_shortened_caps_only_the_named_coordinates_and_never_reverses():
     p0, p1 = np.r_[0.0, 0.0, 0.8], np.r_[0.03, 0.04, 0.7]  # 5 cm horizontally, 10 cm down
     xy = shortened(p0, p1, 0.05, 0.025, dims=slice(0, 2))
@@ -174,7 +204,7 @@ def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
     for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed",
-                 "contact_a_slide_full"):
+                 "contact_a_slide_full", "contact_a_touch"):
         with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
             FlatLabUnifiedConfig(**{flag: True})
         assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)

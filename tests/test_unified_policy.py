@@ -158,7 +158,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "contact": "observed", "contact_grip_closed": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_slide_full": "true",
-      "clear_all": "true", "quick_retry": "true"},
+      "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
 )

@@ -26,6 +26,7 @@ A_PASSES = 3  # push passes at most; a pass is skipped once the overhang is with
 A_SKIP_MISSING = 0.01  # m
 A_SKIP_HOLD = 0.1  # a skipped pass's stages each hold this long (s)
 A_PRESS_OPEN = 0.0  # press with closed fingers (open ones were measured worse: 0/10)
+A_PRESS_BEHIND = 0.02  # the press point lies this far behind (-x) the object's centre (m)
 
 # each stage's primitive and timing (duration of the Cartesian motion, transit to its start)
 S_TOUCH = StageSpec("touch", 0.6, transit=1.5)
@@ -65,7 +66,7 @@ def _a_grasp_arm(world: World, ctx: dict) -> str:
 def _a_press_pose(world: World):
     top = world.table_height + world.size[2]
     p = world.pos.copy()
-    p[0] -= 0.02
+    p[0] -= A_PRESS_BEHIND
     p[2] = top + FINGER_TIP_BELOW_TCP - A_PRESS_DEPTH
     return p, tcp_rotation(DOWN, [0.0, 1.0, 0.0])
 

@@ -158,6 +158,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with contact=observed: A's slide goes the expert's whole slide_distance for the overhang the cloud still
     # misses, straight along +x, instead of the learned slide capped at it (observed_contact.py)
     contact_a_slide_full: bool = False
+    # with contact=observed: A's push-pass touch comes straight down 2 cm behind the seen object's centre, the
+    # expert's press point, instead of at the learned point (observed_contact.py)
+    contact_a_touch: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -167,7 +170,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if self.contact not in CONTACT_CHOICES:
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift",
-                     "contact_b_align", "contact_grip_closed", "contact_a_slide_full"):
+                     "contact_b_align", "contact_grip_closed", "contact_a_slide_full",
+                     "contact_a_touch"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:

@@ -325,7 +325,8 @@ class _Episode:
                                                      a_grasp=a_grasp,
                                                      a_sheet_lift=self.policy.config.contact_a_sheet_lift,
                                                      b_steady=self.policy.config.contact_b_steady,
-                                                     a_slide_full=self.policy.config.contact_a_slide_full)  # fmt: skip
+                                                     a_slide_full=self.policy.config.contact_a_slide_full,
+                                                     a_touch=self.policy.config.contact_a_touch)  # fmt: skip
                 if turn is not None:
                     heights[a]["b_align_deg"] = math.degrees(turn)
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first

@@ -131,6 +131,13 @@ slide (:func:`full_slide`), instead of the learned slide capped at it.  The lear
 on desk 5 (``magazine_comics_digest``, stop 43) it went 30 cm where the rule asked 43 cm, so passes 2 and 3 ran
 (3.8 and 7.2 cm) and the attempt took 317 steps against the expert's 180 for an A object: the time
 the desks ran out of.  With it that desk was cleared (docs/unified.md, stop 43).
+
+``--policy.contact_a_touch=true`` (with ``observed``): A's push-pass touch comes straight down at the expert's
+press point, ``A_PRESS_BEHIND`` (2 cm) behind the seen object's centre (:func:`a_touch_xy`; the expert's
+``_a_press_pose`` from the true centre), instead of at the learned point.  On a desk the executor, trained on
+one object per scene, put the touch on a neighbour: desk 25 (stop 43, front camera) pressed the right hand
+onto ``laptop_13in`` 20 cm from the target ``pad_memo``, at the pad's contact height, and the laptop and a
+painting beside it were thrown off the table; the desk could not be cleared after that.
 """
 
 from __future__ import annotations
@@ -141,6 +148,7 @@ import numpy as np
 from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.strategies.a_push_to_edge import (
     A_PREAPPROACH,
+    A_PRESS_BEHIND,
     A_PRESS_DEPTH,
     A_SHEET_LIFT_MARGIN,
     arm_on_side,
@@ -316,6 +324,14 @@ def cap_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
     return shortened(p0, p1, float(p1[0] - p0[0]), cap)
 
 
+def a_touch_xy(points: np.ndarray) -> np.ndarray | None:
+    """(x, y) of A's press point on the seen object: ``A_PRESS_BEHIND`` behind the centre of its cloud, as the
+    expert's ``_a_press_pose`` from the true centre; None when too few points are seen."""
+    if len(points) < MIN_POINTS:
+        return None
+    return seen_centre(points) - np.r_[A_PRESS_BEHIND, 0.0]
+
+
 def full_slide(p0: np.ndarray, p1: np.ndarray, cap: float | None) -> np.ndarray:
     """The slide's end ``cap`` ahead of its start along +x, level with its start (the expert's slide: straight
     along +x, ``slide_distance`` long); its height as given; unchanged when the object is unseen."""
@@ -484,6 +500,7 @@ def observed_motion(
     strategy: str, index: int, primitive: str, p0: np.ndarray, p1: np.ndarray, points: np.ndarray,
     table: float, edge_x: float, pinching: bool, hand, from_hand: bool = False, b_face: bool = False,
     a_grasp: bool = False, a_sheet_lift: bool = False, b_steady: bool = False, a_slide_full: bool = False,
+    a_touch: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """One commanded arm's learned motion ``p0 -> p1`` of this stage with every rule above applied: the
     heights, A's slide cap, C's pinch position and C's squeeze length.  ``pinching``: this arm is the one
@@ -497,6 +514,7 @@ def observed_motion(
     (:func:`sheet_lift_end`; ``log["sheet_lift"]``).  ``b_steady`` (with ``from_hand``): B's squeeze and lift
     keep the hand's orientation (``log["steady"]``: the caller ends them in the start orientation).
     ``a_slide_full``: A's slide goes the whole expert's distance (:func:`full_slide`), not at most it.
+    ``a_touch``: A's push-pass touch comes straight down at the seen press point (:func:`a_touch_xy`).
     Returns the motion and what was decided (the stage log)."""
     log: dict = {"learned": [float(p0[2]), float(p1[2])]}
     if a_grasp and strategy == "A" and index == A_PREAPPROACH:
@@ -505,6 +523,11 @@ def observed_motion(
     if b_face and strategy == "B" and primitive == "touch":
         p0, p1 = b_touch_at_face(p0, p1, points)
         log["b_face"] = [float(v) for v in p1[:2]]
+    if a_touch and strategy == "A" and primitive == "touch" and index < A_PREAPPROACH:
+        xy = a_touch_xy(points)
+        if xy is not None:  # straight down there, as the expert's touch
+            p0, p1 = np.r_[xy, p0[2]], np.r_[xy, p1[2]]
+            log["a_touch"] = [float(v) for v in xy]
     at_hand = starts_at_hand(strategy, index, from_hand)
     if at_hand:
         here = np.asarray(hand(), float)
