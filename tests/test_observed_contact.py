@@ -204,7 +204,7 @@ def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
     for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed",
-                 "contact_a_slide_full", "contact_a_touch"):
+                 "contact_a_slide_full", "contact_a_touch", "contact_a_pusher_side"):
         with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
             FlatLabUnifiedConfig(**{flag: True})
         assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)

@@ -28,6 +28,7 @@ from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import Fla
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import INPUTS, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy, Observed, _Episode
+from flatlab_lerobot.sim.robot import ARMS
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES, World
 
 BIN = Path(sys.executable).parent
@@ -158,7 +159,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "contact": "observed", "contact_grip_closed": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_slide_full": "true",
-      "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true"},
+      "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true", "contact_a_pusher_side": "true",
+      "retry_next_strategy": "true", "retry_switch_after": "2"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
 )
@@ -677,6 +679,58 @@ def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_p
         assert [d["retry"]["same_object"] for d in ep.log] == [False, True, True, True, False, True]
     with pytest.raises(ValueError, match="retry_next_strategy=true needs --policy.clear_all=true"):
         FlatLabUnifiedConfig(retry_next_strategy=True)
+
+
+@pytest.mark.parametrize("switch", [False, True])
+def test_a_pusher_side_pushes_with_the_arm_on_the_seen_objects_side(tiny, switch):
+    """contact_a_pusher_side: A's push passes are commanded to the arm on the seen object's side (the expert's
+    rule), the executor's other arm's motion mirrored onto it, chosen once per attempt; without the switch
+    the executor's arm pushes (here forced to the far one)."""
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, arm_on_side
+
+    pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_a_pusher_side=str(switch).lower())
+    env = _env()
+    obs, _ = env.reset(seed=3)
+    pts = obs["object_pointcloud"].astype(float)
+    side = arm_on_side(float(pts[np.any(pts != 0, 1)][:, :2].mean(0)[1]))
+    far = next(a for a in ARMS if a != side)
+    orig = pol.executor.predict_poses
+
+    def far_arm(*args, **kw):
+        poses = orig(*args, **kw)
+        for a in ARMS:
+            poses[a]["active"] = np.array([0.95 if a == far else 0.05])
+        return poses
+
+    pol.executor.predict_poses = far_arm
+    pol.reset()
+    for _ in range(60):
+        obs, *_ = env.step(pol.select_action(_batch(obs))[0].numpy())
+        if pol.stage_indices[0] >= 3:
+            break
+    env.close()
+    push = [d for d in pol.decisions[0] if "primitive" in d and d["index"] < A_PREAPPROACH]
+    assert len(push) >= 3
+    assert all(d["arms"] == ([side] if switch else [far]) for d in push), push
+    if switch:
+        assert all(d["a_arm"] == {"learned": [far], "side": side, "mirrored_from": far} for d in push)
+
+
+def test_retry_switch_after_gives_each_strategy_that_many_attempts(tiny, monkeypatch):
+    """retry_switch_after=k: on an object left in place each strategy, most probable first, gets k attempts
+    before the next one; all three tried k times, from the top again; an object seen elsewhere starts afresh."""
+    pol = _load(tiny["artifact"], clear_all="true", retry_next_strategy="true", retry_switch_after="2")
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+    ep = _Episode(pol, None, None)
+    cell = np.r_[0.75, 0.6, np.zeros(5)]
+    noise = np.random.default_rng(0).normal(0, 0.01, (K, 3))
+    here = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[0.1, -0.2, 0.76] + noise)
+    moved = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[0.1, -0.08, 0.76] + noise)
+    got = [ep._next_strategy(o) for o in [here] * 7 + [moved] * 3]
+    assert got == ["B", "B", "A", "A", "C", "C", "B", "B", "B", "A"]
+    for bad in (0, 11):
+        with pytest.raises(ValueError, match="retry_switch_after: must be in"):
+            FlatLabUnifiedConfig(clear_all=True, retry_next_strategy=True, retry_switch_after=bad)
 
 
 def test_rank_strategies_orders_the_generators_probabilities(tiny, monkeypatch):

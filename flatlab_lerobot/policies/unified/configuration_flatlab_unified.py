@@ -121,6 +121,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
     # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
     retry_next_strategy: bool = False
+    # with retry_next_strategy: the attempts one strategy gets on an object left in place before the next most
+    # probable one is tried (1: switch after every failed attempt)
+    retry_switch_after: int = 1
     # with clear_all: when the object cloud is not aloft as the final hold begins (the lift visibly failed),
     # skip the hold and the settle and go home at once, to retry sooner
     quick_retry: bool = False
@@ -161,6 +164,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with contact=observed: A's push-pass touch comes straight down 2 cm behind the seen object's centre, the
     # expert's press point, instead of at the learned point (observed_contact.py)
     contact_a_touch: bool = False
+    # with contact=observed: A's push passes are pushed by the arm on the seen object's side (right at y <= 0),
+    # chosen once per attempt at its first touch, as the expert's pusher; the executor's arm where it chose
+    # that one, else its most active arm's motion mirrored across the seen centre line (observed_contact.py)
+    contact_a_pusher_side: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -171,13 +178,15 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift",
                      "contact_b_align", "contact_grip_closed", "contact_a_slide_full",
-                     "contact_a_touch"):
+                     "contact_a_touch", "contact_a_pusher_side"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if self.retry_next_strategy and not self.clear_all:
             raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
+        if not 1 <= int(self.retry_switch_after) <= 10:
+            raise ValueError(f"--policy.retry_switch_after: must be in [1, 10], got {self.retry_switch_after!r}")
         if self.quick_retry and not self.clear_all:
             raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
         if self.contact_b_steady and not self.contact_from_hand:

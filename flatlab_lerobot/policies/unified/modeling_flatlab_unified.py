@@ -145,10 +145,11 @@ class _Episode:
         self.after = None  # clear_all: the carry-off / go-home / settle actions after the final hold
         self.lift_arms: tuple[str, ...] = ()  # the arms the last posed stage commanded (they hold what was lifted)
         self.a_side: str | None = None  # contact_a_grasp: A's grasp arm by the seen side, decided at the pre-approach
+        self.a_pusher: str | None = None  # contact_a_pusher_side: A's pushing arm by the seen side, decided at the first touch
         self.obs: Observed | None = None
         self.started = False  # the current attempt has its strategy
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
-        self.tried: list[str] = []  # retry_next_strategy: the strategies tried on the object seen at tried_at
+        self.tried: list[str] = []  # retry_next_strategy: the strategy of each attempt on the object seen at tried_at
         self.tried_at: np.ndarray | None = None  # its seen centre (x, y) when the last attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
 
@@ -245,17 +246,18 @@ class _Episode:
     def _next_strategy(self, obs: Observed) -> str:
         """The generator's strategy; with ``retry_next_strategy``, when the object cloud is seen where the last
         attempt started (within RETRY_SAME_OBJECT: the same object, left on the table), its most probable
-        strategy not yet tried there (all three tried: from the top again)."""
+        strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again)."""
         if not self.policy.config.retry_next_strategy:
             return self.policy.choose_strategy(obs.object_cloud)
+        k = int(self.policy.config.retry_switch_after)
         pts = obs.object_points
         here = seen_centre(pts)[:2] if len(pts) else None
         same = here is not None and self.tried_at is not None
         same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
-        if not same or len(self.tried) >= 3:
+        if not same or len(self.tried) >= 3 * k:
             self.tried = []
         ranked = self.policy.rank_strategies(obs.object_cloud)
-        choice = next(s for s in ranked if s not in self.tried)
+        choice = next(s for s in ranked if self.tried.count(s) < k)
         self.log.append({"retry": {"same_object": bool(same), "tried": list(self.tried), "ranked": ranked,
                                    "chosen": choice}})  # fmt: skip
         self.tried.append(choice)
@@ -267,6 +269,7 @@ class _Episode:
         self.q = np.r_[self.last[0:7], self.last[8:15]].copy()
         self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
         self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
+        self.a_pusher = None
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
@@ -302,6 +305,8 @@ class _Episode:
         source, y_centre, arm_log = None, None, {}  # contact_a_grasp: the learned arm mirrored onto the rule's arm
         if a_grasp and self.strategy == "A" and self.index >= A_PREAPPROACH:  # A's pre-approach and after
             arms, source, y_centre, arm_log = self._a_grasp_arms(arms, prob, obs)
+        elif observed and self.policy.config.contact_a_pusher_side and self.strategy == "A" and self.index < A_PREAPPROACH:
+            arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
@@ -356,7 +361,7 @@ class _Episode:
         its commanded hand as the expert's does (``pusher_backoff``), replacing any learned motion of it;
         otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.
         Returns (arms, duration)."""
-        if self.a_side is None:
+        if self.a_side is None or self.a_pusher == self.a_side:  # the pusher grasps too: nothing to back off
             return arms, duration
         pusher = next(a for a in ARMS if a != self.a_side)
         hand, R = commanded_fk()[pusher]
@@ -374,6 +379,17 @@ class _Episode:
         arms, source = a_grasp_arms(learned, prob, self.a_side, preapproach=self.index == A_PREAPPROACH)
         y_centre = None if source is None else float(seen_centre(obs.object_points)[1])
         return arms, source, y_centre, {"a_arm": {"learned": learned, "side": self.a_side, "mirrored_from": source}}
+
+    def _a_pusher_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
+        """``contact_a_pusher_side`` in A's push passes: as :meth:`_a_grasp_arms`, for the pushing arm, decided
+        once per attempt at its first touch from the object cloud seen then, as the expert's ``_a_arm``.  The
+        executor chose the arm off the object's side for a CD case 24 cm to the right (desk 8): reaching across,
+        the hand stopped short of the case and three passes moved nothing."""
+        if self.a_pusher is None:
+            self.a_pusher = a_grasp_side(obs.object_points)
+        arms, source = a_grasp_arms(learned, prob, self.a_pusher)
+        y_centre = None if source is None else float(seen_centre(obs.object_points)[1])
+        return arms, source, y_centre, {"a_arm": {"learned": learned, "side": self.a_pusher, "mirrored_from": source}}
 
     def _proprio(self, obs: Observed) -> np.ndarray:
         """(16,) per arm TCP position, quaternion wxyz (forward kinematics of the observed joints) and

@@ -382,8 +382,9 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
 
 
 def a_grasp_side(points: np.ndarray) -> str | None:
-    """The arm that grasps A's overhang: the one on the side of the seen object's centre (``right`` at
-    y <= 0, as the expert's ``_a_grasp_arm``); None when too few points are seen."""
+    """The arm that grasps A's overhang (or, ``contact_a_pusher_side``, pushes it): the one on the side of the
+    seen object's centre (``right`` at y <= 0, as the expert's ``_a_grasp_arm`` and ``_a_arm``); None when too
+    few points are seen."""
     if len(points) < MIN_POINTS:
         return None
     return arm_on_side(float(seen_centre(points)[1]))
