@@ -11,6 +11,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     apply_xy,
     b_align_turn,
     b_aligned,
+    b_centred,
     b_from_hand,
     b_touch_at_face,
     c_pinch_xy,
@@ -204,7 +205,7 @@ def test_contact_switch_is_validated():
     with pytest.raises(ValueError, match="--policy.contact"):
         FlatLabUnifiedConfig(contact="expert")
     for flag in ("contact_from_hand", "contact_b_face", "contact_b_align", "contact_grip_closed",
-                 "contact_a_slide_full", "contact_a_touch", "contact_a_pusher_side"):
+                 "contact_a_slide_full", "contact_a_touch", "contact_a_pusher_side", "contact_b_centred"):
         with pytest.raises(ValueError, match=f"{flag}=true needs --policy.contact=observed"):
             FlatLabUnifiedConfig(**{flag: True})
         assert getattr(FlatLabUnifiedConfig(contact="observed", **{flag: True}), flag)
@@ -321,6 +322,30 @@ def test_b_aligned_turns_the_touch_about_the_seen_centre_so_it_approaches_the_si
     _, end = b_touch_at_face(a0, a1, album)
     assert float((end[:2] - centre) @ (rot @ [0.0, 1.0])) == pytest.approx(0.15 + FINGER_HALF_WIDTH, abs=0.004)
     assert b_aligned(p0, p1, R, R, album[:3])[4] is None  # unseen: unchanged
+
+
+def test_b_centred_slides_each_touch_along_its_fingers_to_face_the_seen_centre():
+    """contact_b_centred: desk 25's painting (seen centre (-0.10, 0.19)) and learned touches 9 cm apart along
+    the side (x -0.07 and -0.17, fingers along x): each is shifted along its finger axis, keeping its approach
+    and height, so both face the centre; a turned finger axis moves the hand along that axis; unseen: unchanged."""
+    from flatlab_lerobot.sim.robot import tcp_rotation
+
+    painting = _box_cloud((-0.10, 0.19), (0.26, 0.26, 0.02))
+    c = painting[:, :2].mean(0)
+    R = tcp_rotation([0, 0, -1], [1, 0, 0])  # fingers along x, approach along y
+    left = (np.r_[-0.062, 0.356, 0.764], np.r_[-0.071, 0.322, 0.764])
+    right = (np.r_[-0.173, 0.033, 0.764], np.r_[-0.165, 0.060, 0.764])
+    for p0, p1 in (left, right):
+        a0, a1 = b_centred(p0, p1, R, painting)
+        assert a1[0] == pytest.approx(c[0]) and a1[1] == pytest.approx(p1[1]) and a1[2] == p1[2]
+        np.testing.assert_allclose(a1 - a0, p1 - p0, atol=1e-12)  # the approach kept
+    yaw = np.radians(20.0)
+    fingers = np.r_[np.cos(yaw), np.sin(yaw), 0.0]
+    a0, a1 = b_centred(*left, tcp_rotation([0, 0, -1], fingers), painting)
+    assert float((a1[:2] - c) @ fingers[:2]) == pytest.approx(0.0, abs=1e-12)
+    assert np.cross(fingers[:2], a1[:2] - left[1][:2]) == pytest.approx(0.0, abs=1e-12)  # moved along the fingers
+    for got, want in zip(b_centred(*left, R, painting[:3]), left):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_b_touch_ends_just_outside_the_seen_face_it_approaches():

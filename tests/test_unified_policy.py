@@ -154,7 +154,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     [{}, {"strategy": "A", "contact": "observed"}, {"strategy": "A", "contact": "observed", "contact_from_hand": "true"},
      {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true"},
      {"strategy": "B", "contact": "observed", "contact_from_hand": "true", "contact_b_face": "true",
-      "contact_b_steady": "true", "contact_b_align": "true"},
+      "contact_b_steady": "true", "contact_b_align": "true", "contact_b_centred": "true"},
      {"strategy": "C", "contact": "observed"},
      {"strategy": "C", "contact": "observed", "contact_grip_closed": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},

@@ -168,6 +168,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # chosen once per attempt at its first touch, as the expert's pusher; the executor's arm where it chose
     # that one, else its most active arm's motion mirrored across the seen centre line (observed_contact.py)
     contact_a_pusher_side: bool = False
+    # with contact=observed: B's touch shifted along its fingers so each hand faces the seen object's centre,
+    # as the expert's two hands face each other across it (observed_contact.py)
+    contact_b_centred: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):
@@ -178,7 +181,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.contact: must be one of {list(CONTACT_CHOICES)}, got {self.contact!r}")
         for flag in ("contact_from_hand", "contact_b_face", "contact_a_grasp", "contact_a_sheet_lift",
                      "contact_b_align", "contact_grip_closed", "contact_a_slide_full",
-                     "contact_a_touch", "contact_a_pusher_side"):
+                     "contact_a_touch", "contact_a_pusher_side", "contact_b_centred"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:

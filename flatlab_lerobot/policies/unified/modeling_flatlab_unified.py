@@ -58,6 +58,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     a_grasp_arms,
     a_grasp_side,
     b_aligned,
+    b_centred,
     mirror_pose,
     object_footprint_x,
     observed_motion,
@@ -321,6 +322,8 @@ class _Episode:
             turn = None
             if observed and self.policy.config.contact_b_align and self.strategy == "B" and spec.primitive == "touch":
                 p0, p1, R0, R1, turn = b_aligned(p0, p1, R0, R1, pts)  # the fingers along the seen side
+            if observed and self.policy.config.contact_b_centred and self.strategy == "B" and spec.primitive == "touch":
+                p0, p1 = b_centred(p0, p1, R1, pts)  # the hand faces the seen centre
             if observed:  # contact heights, A's slide, C's squeeze and pinch from the clouds (observed_contact.py)
                 hand = lambda a=a: commanded_fk()[a][0]  # noqa: E731  the commanded hand's position
                 p0, p1, heights[a] = observed_motion(self.strategy, self.index, spec.primitive, p0, p1, pts,
