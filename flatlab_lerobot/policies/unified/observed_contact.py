@@ -503,13 +503,13 @@ def b_centred(p0: np.ndarray, p1: np.ndarray, R1: np.ndarray, points: np.ndarray
     """B's touch ``p0 -> p1`` shifted along its finger axis (the hand's y, ``R1[:, 1]``, horizontal) so that the
     hand faces the seen centre, as the expert's two hands face each other across the object's centre
     (``b_squeeze._b_targets``); unchanged when the object is unseen or the finger axis is vertical.  Learned
-    touches 9 cm apart along the side squeezed a 2-kg painting off-centre and it crept 1.6 cm in the hold (desk 25)."""
+    touches 9 cm apart along the side squeezed a painting off-centre and it crept 1.6 cm in the hold (desk 25)."""
     y = np.asarray(R1, float)[:2, 1]
     if len(points) < MIN_POINTS or np.linalg.norm(y) < 1e-6:
         return np.array(p0, float), np.array(p1, float)
     y = y / np.linalg.norm(y)
     off = float((np.asarray(p1, float)[:2] - seen_centre(points)) @ y)
-    return (np.r_[np.asarray(p[:2], float) - off * y, p[2]] for p in (p0, p1))
+    return tuple(np.r_[np.asarray(p[:2], float) - off * y, p[2]] for p in (p0, p1))
 
 
 def observed_motion(
