@@ -384,12 +384,12 @@ def test_c_pinch_at_the_seen_centre_then_where_the_hand_is():
 
 
 def test_a_grasp_arm_is_the_seen_sides_and_a_far_arms_motion_is_mirrored_onto_it():
-    from flatlab_lerobot.policies.unified.observed_contact import a_grasp_arms, a_grasp_side, mirror_pose
+    from flatlab_lerobot.policies.unified.observed_contact import a_side_arms, a_side_arm, mirror_pose
     from flatlab_lerobot.sim.robot import tcp_rotation
 
-    assert a_grasp_side(_box_cloud((0.2, -0.05), (0.28, 0.2, 0.008))) == "right"  # y <= 0: the expert's rule
-    assert a_grasp_side(_box_cloud((0.2, 0.05), (0.28, 0.2, 0.008))) == "left"
-    assert a_grasp_side(np.zeros((3, 3))) is None  # too few points: no rule
+    assert a_side_arm(_box_cloud((0.2, -0.05), (0.28, 0.2, 0.008))) == "right"  # y <= 0: the expert's rule
+    assert a_side_arm(_box_cloud((0.2, 0.05), (0.28, 0.2, 0.008))) == "left"
+    assert a_side_arm(np.zeros((3, 3))) is None  # too few points: no rule
     # the expert's approach of the left arm, mirrored across the object's centre line, is the right arm's
     yaw, yc = np.radians(35.0), -0.04
     a_left, a_right = np.r_[-np.cos(yaw), -np.sin(yaw), 0.0], np.r_[-np.cos(yaw), np.sin(yaw), 0.0]
@@ -399,11 +399,11 @@ def test_a_grasp_arm_is_the_seen_sides_and_a_far_arms_motion_is_mirrored_onto_it
     np.testing.assert_allclose(R, tcp_rotation(a_right, [0, 0, 1]), atol=1e-12)
     assert np.linalg.det(R) == pytest.approx(1.0)
     prob = {"left": 0.9, "right": 0.2}
-    assert a_grasp_arms(["left"], prob, "right") == (["right"], "left")  # the far arm's motion, mirrored
-    assert a_grasp_arms(["left", "right"], prob, "right") == (["right"], None)  # the grasping arm only
-    assert a_grasp_arms(["left", "right"], prob, "right", preapproach=True) == (["left", "right"], None)
-    assert a_grasp_arms(["right"], prob, "right") == (["right"], None)
-    assert a_grasp_arms(["left"], prob, None) == (["left"], None)  # nothing seen: learned
+    assert a_side_arms(["left"], prob, "right") == (["right"], "left")  # the far arm's motion, mirrored
+    assert a_side_arms(["left", "right"], prob, "right") == (["right"], None)  # the grasping arm only
+    assert a_side_arms(["left", "right"], prob, "right", preapproach=True) == (["left", "right"], None)
+    assert a_side_arms(["right"], prob, "right") == (["right"], None)
+    assert a_side_arms(["left"], prob, None) == (["left"], None)  # nothing seen: learned
 
 
 def test_contact_a_grasp_needs_observed():

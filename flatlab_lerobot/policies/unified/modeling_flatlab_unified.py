@@ -55,8 +55,8 @@ from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import STRATEGY
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     GRIP_CLOSED_STRATEGIES,
-    a_grasp_arms,
-    a_grasp_side,
+    a_side_arm,
+    a_side_arms,
     b_aligned,
     b_centred,
     mirror_pose,
@@ -374,25 +374,28 @@ class _Episode:
         return [a for a in ARMS if a in arms or a == pusher], max(duration, spec.transit, spec.for_motion(hand, back))
 
     def _a_grasp_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
-        """``contact_a_grasp`` in A's grasp stages: (arms, the learned arm mirrored onto the rule's arm or
-        None, the seen centre line's y it is mirrored across, the stage log's entry).  The side is decided
-        once, at the pre-approach, from the object cloud seen then (observed_contact.a_grasp_side)."""
+        """``contact_a_grasp`` in A's grasp stages (:meth:`_side_arms`).  The side is decided once, at the
+        pre-approach, from the object cloud seen then (observed_contact.a_side_arm)."""
         if self.index == A_PREAPPROACH:
-            self.a_side = a_grasp_side(obs.object_points)
-        arms, source = a_grasp_arms(learned, prob, self.a_side, preapproach=self.index == A_PREAPPROACH)
-        y_centre = None if source is None else float(seen_centre(obs.object_points)[1])
-        return arms, source, y_centre, {"a_arm": {"learned": learned, "side": self.a_side, "mirrored_from": source}}
+            self.a_side = a_side_arm(obs.object_points)
+        return self._side_arms(self.a_side, learned, prob, obs, preapproach=self.index == A_PREAPPROACH)
 
     def _a_pusher_arms(self, learned: list[str], prob: dict[str, float], obs: Observed):
-        """``contact_a_pusher_side`` in A's push passes: as :meth:`_a_grasp_arms`, for the pushing arm, decided
+        """``contact_a_pusher_side`` in A's push passes (:meth:`_side_arms`), for the pushing arm, decided
         once per attempt at its first touch from the object cloud seen then, as the expert's ``_a_arm``.  The
         executor chose the arm off the object's side for a CD case 24 cm to the right (desk 8): reaching across,
         the hand stopped short of the case and three passes moved nothing."""
         if self.a_pusher is None:
-            self.a_pusher = a_grasp_side(obs.object_points)
-        arms, source = a_grasp_arms(learned, prob, self.a_pusher)
+            self.a_pusher = a_side_arm(obs.object_points)
+        return self._side_arms(self.a_pusher, learned, prob, obs)
+
+    def _side_arms(self, side: str | None, learned: list[str], prob: dict[str, float], obs: Observed,
+                   preapproach: bool = False):  # fmt: skip
+        """(arms, the learned arm mirrored onto the arm on ``side`` or None, the seen centre line's y it is
+        mirrored across, the stage log's entry) for one of A's stages run by the arm on the seen side."""
+        arms, source = a_side_arms(learned, prob, side, preapproach=preapproach)
         y_centre = None if source is None else float(seen_centre(obs.object_points)[1])
-        return arms, source, y_centre, {"a_arm": {"learned": learned, "side": self.a_pusher, "mirrored_from": source}}
+        return arms, source, y_centre, {"a_arm": {"learned": learned, "side": side, "mirrored_from": source}}
 
     def _proprio(self, obs: Observed) -> np.ndarray:
         """(16,) per arm TCP position, quaternion wxyz (forward kinematics of the observed joints) and

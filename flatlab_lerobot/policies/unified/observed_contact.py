@@ -56,7 +56,7 @@ and the squeeze that followed lifted nothing.  With ``contact_from_hand`` the sq
 
 ``--policy.contact_a_grasp=true`` (with ``observed``): A's grasp stages (pre-approach, approach, grasp, lift)
 are commanded to the arm on the side of the seen object's centre, decided once at the pre-approach, as
-the expert's ``_a_grasp_arm`` decides from the true centre (:func:`a_grasp_side`).  Where the executor
+the expert's ``_a_grasp_arm`` decides from the true centre (:func:`a_side_arm`).  Where the executor
 commands only the other arm, that arm's learned motion is mirrored across the seen centre line onto the
 rule's arm (:func:`mirror_pose`: the expert's approach for the two arms are such mirror images); the
 executor's pose of an arm it does not command is untrained.  The learned arm reached across for objects
@@ -70,7 +70,7 @@ line from where each commanded hand is to its learned pose, taking the transit's
 transit's joint-space path dipped the hand 9.5 cm onto it and dragged it off the table
 (``magazine_fashion`` seed 1003; so fell 4 of the 6 trials of a 12-trial pilot that still failed with the
 arm by side alone); the expert's transit from its own joints arches 50 cm up instead.  After the
-pre-approach only the rule's arm moves (:func:`a_grasp_arms`), and the grasp closes where the hand is, as
+pre-approach only the rule's arm moves (:func:`a_side_arms`), and the grasp closes where the hand is, as
 the expert's does.  Measured: docs/unified.md (stop 39).
 
 ``--policy.contact_a_backoff=true`` (with ``contact_a_grasp``): at the pre-approach the arm off the seen
@@ -381,7 +381,7 @@ def apply_xy(p0: np.ndarray, p1: np.ndarray, xy) -> tuple[np.ndarray, np.ndarray
     return p0, p1
 
 
-def a_grasp_side(points: np.ndarray) -> str | None:
+def a_side_arm(points: np.ndarray) -> str | None:
     """The arm that grasps A's overhang (or, ``contact_a_pusher_side``, pushes it): the one on the side of the
     seen object's centre (``right`` at y <= 0, as the expert's ``_a_grasp_arm`` and ``_a_arm``); None when too
     few points are seen."""
@@ -400,7 +400,7 @@ def mirror_pose(p: np.ndarray, R: np.ndarray, y_centre: float) -> tuple[np.ndarr
     return p, S @ np.asarray(R, float) @ np.diag([-1.0, 1.0, 1.0])
 
 
-def a_grasp_arms(learned: list[str], prob: dict[str, float], side: str | None,
+def a_side_arms(learned: list[str], prob: dict[str, float], side: str | None,
                  preapproach: bool = False) -> tuple[list[str], str | None]:  # fmt: skip
     """(arms commanded, arm whose learned motion is mirrored onto ``side`` or None) for one of A's grasp
     stages: the rule's arm alone, with its own learned motion, or, where the executor does not command it,
