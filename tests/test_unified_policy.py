@@ -160,7 +160,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_slide_full": "true",
       "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true", "contact_a_pusher_side": "true",
-      "retry_next_strategy": "true", "retry_switch_after": "2"},
+      "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
 )
@@ -731,6 +731,36 @@ def test_retry_switch_after_gives_each_strategy_that_many_attempts(tiny, monkeyp
     for bad in (0, 11):
         with pytest.raises(ValueError, match="retry_switch_after: must be in"):
             FlatLabUnifiedConfig(clear_all=True, retry_next_strategy=True, retry_switch_after=bad)
+
+
+@pytest.mark.parametrize("track", [False, True])
+def test_retry_track_follows_the_object_an_attempt_pushed(tiny, monkeypatch, track):
+    """retry_track: the object an attempt moved (A's push: 30 cm towards the edge, 3 cm a step) is still the
+    one tried, so after two A attempts on it the next is B; a jump of the seen centre is the next object,
+    which starts afresh.  Without it, where the last attempt started finds nothing: A again and again."""
+    pol = _load(tiny["artifact"], clear_all="true", retry_next_strategy="true", retry_switch_after="2",
+                retry_track=str(track).lower())  # fmt: skip
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["A", "B", "C"])
+    ep = _Episode(pol, None, None)
+    cell = np.r_[0.75, 0.6, np.zeros(5)]
+    noise = np.random.default_rng(0).normal(0, 0.01, (K, 3))
+
+    def seen(x, y):
+        o = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[x, y, 0.76] + noise)
+        ep._track(o) if track else None  # act() follows the cloud at every step
+        return o
+
+    got = [ep._next_strategy(seen(-0.2, -0.2))]
+    for x in np.arange(-0.17, 0.12, 0.03):  # the first push
+        seen(x, -0.2)
+    got.append(ep._next_strategy(seen(0.1, -0.2)))
+    for x in np.arange(0.12, 0.2, 0.02):  # the second, to the edge; the pushed object stays on the table
+        seen(x, -0.2)
+    got.append(ep._next_strategy(seen(0.2, -0.2)))
+    got.append(ep._next_strategy(seen(-0.1, 0.2)))  # lifted and carried off: the env shows the next object
+    assert got == (["A", "A", "B", "A"] if track else ["A", "A", "A", "A"])
+    with pytest.raises(ValueError, match="retry_track=true needs --policy.retry_next_strategy"):
+        FlatLabUnifiedConfig(clear_all=True, retry_track=True)
 
 
 def test_rank_strategies_orders_the_generators_probabilities(tiny, monkeypatch):

@@ -124,6 +124,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with retry_next_strategy: the attempts one strategy gets on an object left in place before the next most
     # probable one is tried (1: switch after every failed attempt)
     retry_switch_after: int = 1
+    # with retry_next_strategy: the object is the same as the last attempt's when the object cloud, followed from
+    # step to step, never jumped since (wherever the attempt moved it), not when it is seen where that attempt
+    # started (A's push moves it, so a strategy that pushes never counted as tried twice)
+    retry_track: bool = False
     # with clear_all: when the object cloud is not aloft as the final hold begins (the lift visibly failed),
     # skip the hold and the settle and go home at once, to retry sooner
     quick_retry: bool = False
@@ -188,6 +192,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if self.retry_next_strategy and not self.clear_all:
             raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
+        if self.retry_track and not self.retry_next_strategy:
+            raise ValueError("--policy.retry_track=true needs --policy.retry_next_strategy=true (what it tracks for)")
         if not 1 <= int(self.retry_switch_after) <= 10:
             raise ValueError(f"--policy.retry_switch_after: must be in [1, 10], got {self.retry_switch_after!r}")
         if self.quick_retry and not self.clear_all:

@@ -55,6 +55,7 @@ from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import STRATEGY
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     GRIP_CLOSED_STRATEGIES,
+    MIN_POINTS,
     a_side_arm,
     a_side_arms,
     b_aligned,
@@ -80,6 +81,7 @@ from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displaceme
 
 ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
 RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to the last attempt's is the same object
+RETRY_TRACK_JUMP = 0.08  # m: retry_track: the seen centre moving this far in one control step is another object
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
 
 
@@ -152,10 +154,14 @@ class _Episode:
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
         self.tried: list[str] = []  # retry_next_strategy: the strategy of each attempt on the object seen at tried_at
         self.tried_at: np.ndarray | None = None  # its seen centre (x, y) when the last attempt started
+        self.track_at: np.ndarray | None = None  # retry_track: the object cloud's seen centre (x, y) at the last step
+        self.track_jumped = False  # retry_track: it jumped (the env shows another object) since the attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
 
     def act(self, obs: Observed) -> np.ndarray:
         self.obs = obs
+        if self.policy.config.retry_track:
+            self._track(obs)
         if self.q is None:
             self.q, self.grip = obs.q14.copy(), obs.fingers
             self.last = joint_action(self.q, self.grip)
@@ -246,7 +252,8 @@ class _Episode:
 
     def _next_strategy(self, obs: Observed) -> str:
         """The generator's strategy; with ``retry_next_strategy``, when the object cloud is seen where the last
-        attempt started (within RETRY_SAME_OBJECT: the same object, left on the table), its most probable
+        attempt started (within RETRY_SAME_OBJECT: the same object, left on the table; with ``retry_track``: the
+        object the last attempt ended on, followed step by step, wherever it was moved), its most probable
         strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again)."""
         if not self.policy.config.retry_next_strategy:
             return self.policy.choose_strategy(obs.object_cloud)
@@ -254,7 +261,10 @@ class _Episode:
         pts = obs.object_points
         here = seen_centre(pts)[:2] if len(pts) else None
         same = here is not None and self.tried_at is not None
-        same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
+        if self.policy.config.retry_track:
+            same, self.track_jumped = same and not self.track_jumped, False
+        else:
+            same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
         if not same or len(self.tried) >= 3 * k:
             self.tried = []
         ranked = self.policy.rank_strategies(obs.object_cloud)
@@ -264,6 +274,19 @@ class _Episode:
         self.tried.append(choice)
         self.tried_at = here
         return choice
+
+    def _track(self, obs: Observed) -> None:
+        """``retry_track``: follow the object cloud's seen centre from step to step.  A push moves the object
+        (A's slide carries it 20-40 cm to the edge, so where the attempt started no longer finds it: the
+        laptop sent to A got four A attempts in a row, desk 54); a jump of RETRY_TRACK_JUMP in one step
+        (0.8 m/s, eight times the carry's speed) is the env showing the next object."""
+        pts = obs.object_points
+        if len(pts) < MIN_POINTS:
+            return
+        here = seen_centre(pts)
+        if self.track_at is not None and float(np.linalg.norm(here - self.track_at)) > RETRY_TRACK_JUMP:
+            self.track_jumped = True
+        self.track_at = here
 
     def _restart(self) -> None:
         """Start a new attempt from the joints commanded last (the strategy is chosen again)."""
