@@ -60,6 +60,15 @@ def joint_action(q14: np.ndarray, grip: dict[str, float]) -> np.ndarray:
     return np.r_[q14[:7], grip["left"], q14[7:], grip["right"]]
 
 
+class Unreachable(RuntimeError):
+    """A primitive's start pose that the arm's IK misses by more than the ``reach_tol`` asked of
+    :meth:`PrimitiveRunner.actions` (raised before the first action): ``miss`` is the distance per arm (m)."""
+
+    def __init__(self, name: str, miss: dict[str, float]):
+        super().__init__(f"{name}: start missed by " + ", ".join(f"{a} {m * 100:.1f} cm" for a, m in miss.items()))
+        self.name, self.miss = name, miss
+
+
 class PrimitiveRunner:
     """Executes primitives as joint targets.  ``ik(targets, seed14) -> q14`` and ``fk(q14) ->
     {arm: (pos, rot)}`` come from a kinematic model of the robot (see ``sim.core``)."""
@@ -67,9 +76,10 @@ class PrimitiveRunner:
     def __init__(self, ik, fk, control_dt: float):
         self.ik, self.fk, self.dt = ik, fk, control_dt
 
-    def actions(self, prim: Primitive, q_now: np.ndarray, grip_now: dict[str, float]):
+    def actions(self, prim: Primitive, q_now: np.ndarray, grip_now: dict[str, float], reach_tol: float | None = None):
         """Yield (stage, action (16,)) until ``prim`` is done.  ``q_now`` is the 14 commanded
-        arm joints; ``grip_now`` the commanded gripper width per arm."""
+        arm joints; ``grip_now`` the commanded gripper width per arm.  ``reach_tol`` (m): raise
+        :class:`Unreachable`, before any action, when the transit's IK misses a start pose by more."""
         q = q_now.copy()
         grip = dict(grip_now)
         # 1. joint-space transit to the start pose of every moving arm that is not there yet
@@ -81,6 +91,11 @@ class PrimitiveRunner:
         }
         if need:
             q_goal = self.ik(need, q, far=True)
+            if reach_tol is not None:
+                got = self.fk(q_goal)
+                miss = {a: float(np.linalg.norm(got[a][0] - p[0])) for a, p in need.items()}
+                if max(miss.values()) > reach_tol:
+                    raise Unreachable(prim.name, miss)
             n = max(1, int(round(prim.transit / self.dt)))
             for k in range(1, n + 1):
                 s = 0.5 - 0.5 * np.cos(np.pi * k / n)  # smooth start and stop

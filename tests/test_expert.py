@@ -96,3 +96,27 @@ def test_c_lifts_a_sheet_higher_than_it_can_hang():
         prim = c_lift(None, w, {"left": pose, "right": pose}, {"left": 0.0, "right": 0.0}, {})
         dz = float(prim.motions["right"].end[0][2] - pose[0][2])
         assert dz >= np.hypot(*size) + 0.05 and dz >= 0.3
+
+
+def test_runner_reach_tol_refuses_a_start_out_of_reach_before_any_action():
+    """PrimitiveRunner.actions(reach_tol=): a start pose the transit's IK misses by more raises Unreachable at
+    the first action, before the arm moves; a reachable one runs as without it."""
+    import numpy as np
+
+    from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable
+    from flatlab_lerobot.sim.robot import HOME_Q
+    from flatlab_lerobot.strategies import Expert
+
+    e = Expert()
+    q = np.r_[HOME_Q, HOME_Q]
+    grip = {"left": 0.04, "right": 0.04}
+    R = e.fk(q)["left"][1]
+    near = (np.array([0.1, 0.1, 0.8]), R)
+    far = (np.array([-0.2, -0.6, 0.764]), R)  # the left arm, 80 cm across to the right-hand back corner
+    ok = Primitive("touch", {"left": ArmMotion(near, near, (0.04, 0.04))}, 0.5)
+    assert [a for _, a in e.runner.actions(ok, q, grip)][-1].tolist() == [
+        a for _, a in e.runner.actions(ok, q, grip, reach_tol=0.03)][-1].tolist()  # fmt: skip
+    steps = e.runner.actions(Primitive("touch", {"left": ArmMotion(far, far, (0.04, 0.04))}, 0.5), q, grip, reach_tol=0.03)
+    with pytest.raises(Unreachable, match="touch: start missed by left") as err:
+        next(steps)
+    assert err.value.miss["left"] > 0.3

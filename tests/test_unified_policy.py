@@ -160,7 +160,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true", "max_push_passes": "1"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_slide_full": "true",
       "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true", "contact_a_pusher_side": "true",
-      "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true"},
+      "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true", "reach_check": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
 )
@@ -761,6 +761,38 @@ def test_retry_track_follows_the_object_an_attempt_pushed(tiny, monkeypatch, tra
     assert got == (["A", "A", "B", "A"] if track else ["A", "A", "A", "A"])
     with pytest.raises(ValueError, match="retry_track=true needs --policy.retry_next_strategy"):
         FlatLabUnifiedConfig(clear_all=True, retry_track=True)
+
+
+@pytest.mark.parametrize("reach", [False, True])
+def test_reach_check_ends_the_attempt_before_the_arm_moves_out_of_reach(tiny, monkeypatch, reach):
+    """reach_check: a stage whose start the arm's IK misses by more than 3 cm is not run: the arm does not move
+    towards it, the attempt ends (arms home) and, with retry_next_strategy, the strategy counts as tried
+    retry_switch_after times, so the next attempt on the object takes the next one.  Without it the arm goes."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.primitives import ArmMotion, Primitive
+    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
+    pol = _load(tiny["artifact"], clear_all="true", retry_next_strategy="true", retry_switch_after="2",
+                reach_check=str(reach).lower())  # fmt: skip
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
+    q0 = sim.joint_positions().astype(float)
+    far = (np.array([-0.2, -0.6, 0.764]), ep.expert.fk(np.r_[q0[0:7], q0[8:15]])["left"][1])
+    monkeypatch.setattr(ep, "_primitive", lambda obs: Primitive("touch", {"left": ArmMotion(far, far, (0.04, 0.04))}, 0.5))
+    moved = 0.0
+    for _ in range(HOME_STEPS + 5):
+        a = ep.act(_desk_observed(sim))
+        moved = max(moved, float(np.abs(a[0:7] - q0[0:7]).max()))
+        sim.step(a)
+        if len(ep.attempts) == 2:
+            break
+    misses = [d["unreachable"] for d in ep.log if "unreachable" in d]
+    if reach:
+        assert misses and all(m["left"] > 0.3 for m in misses) and moved < 0.05, (misses, moved)
+        assert ep.attempts == ["B", "A"]  # B counted twice on the chess set: A next (its stage refused too)
+    else:
+        assert not misses and moved > 0.3 and ep.attempts == ["B"]
 
 
 def test_rank_strategies_orders_the_generators_probabilities(tiny, monkeypatch):

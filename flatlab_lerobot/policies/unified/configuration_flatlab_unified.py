@@ -128,6 +128,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # step to step, never jumped since (wherever the attempt moved it), not when it is seen where that attempt
     # started (A's push moves it, so a strategy that pushes never counted as tried twice)
     retry_track: bool = False
+    # a stage whose start pose the arm cannot reach (the transit's IK on the robot's kinematic model misses it by
+    # more than 3 cm) is not run: the attempt ends there, before the arm moves (with clear_all the arms go home
+    # and, with retry_next_strategy, the next attempt takes another strategy; without, they hold)
+    reach_check: bool = False
     # with clear_all: when the object cloud is not aloft as the final hold begins (the lift visibly failed),
     # skip the hold and the settle and go home at once, to retry sooner
     quick_retry: bool = False

@@ -65,7 +65,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     observed_motion,
     seen_centre,
 )
-from flatlab_lerobot.primitives import ArmMotion, Primitive, joint_action
+from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
 from flatlab_lerobot.strategies import STAGE_SPECS, STRATEGIES
 from flatlab_lerobot.strategies.expert import ExpertCache
@@ -81,6 +81,7 @@ from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displaceme
 
 ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
 RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to the last attempt's is the same object
+REACH_TOL = 0.03  # m: reach_check: a stage whose start pose the IK misses by more is not run
 RETRY_TRACK_JUMP = 0.08  # m: retry_track: the seen centre moving this far in one control step is another object
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
 
@@ -182,8 +183,12 @@ class _Episode:
                 self._restart()
                 return self.act(obs)
             if self.actions is not None:
-                if self._emit(self.actions):
-                    return self.last
+                try:
+                    if self._emit(self.actions):
+                        return self.last
+                except Unreachable as miss:  # reach_check: the arm never moved towards it
+                    self._unreachable(obs, miss, n_stages)
+                    continue
                 self.actions = None
                 self.q, self.grip = self.expert.runner.q.copy(), dict(self.expert.runner.grip)
             if self.index + 1 >= n_stages:
@@ -198,7 +203,8 @@ class _Episode:
             if self._failed_before_hold(obs, n_stages):  # quick_retry: nothing aloft to hold, go home now
                 self.after = self._after_hold(obs, settle=False)
                 continue
-            self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip)
+            reach = REACH_TOL if self.policy.config.reach_check else None
+            self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip, reach_tol=reach)
 
     def _emit(self, steps) -> bool:
         """Take the next (stage, action) of ``steps`` as the last action; False when it is exhausted."""
@@ -226,6 +232,22 @@ class _Episode:
             return False
         self.log.append({"index": self.index, "quick_retry": True})
         return True
+
+    def _unreachable(self, obs: Observed, miss: Unreachable, n_stages: int) -> None:
+        """``reach_check``: the stage's start pose is out of the arm's reach (its IK, on the robot's kinematic
+        model, misses it by more than REACH_TOL), so the attempt ends before the arm moves.  With
+        ``clear_all`` the arms go home and the next attempt takes another strategy (with
+        ``retry_next_strategy`` this one counts as tried ``retry_switch_after`` times on the object); without,
+        they hold.  The left arm sent for B to a pad in the table's right-hand corner (desk 48: its touch
+        25 cm across the centre line at the table's back) ended 56 cm from the touch, below the table top,
+        and the squeeze that followed threw the laptop beside the pad off the table."""
+        self.log.append({"index": self.index, "unreachable": miss.miss})
+        self.actions, self.index = None, n_stages - 1
+        if self.policy.config.retry_next_strategy and self.tried:
+            self.tried += [self.tried[-1]] * (int(self.policy.config.retry_switch_after) - self.tried.count(self.tried[-1]))
+        if self.policy.config.clear_all:
+            self.after = self._after_hold(obs, settle=False)
+        self.stage = "hold"
 
     def _after_hold(self, obs: Observed, settle: bool = True):
         """After the final hold: if the object cloud is aloft, carry it past the usable edge with the
