@@ -299,9 +299,9 @@ class _Episode:
 
     def _track(self, obs: Observed) -> None:
         """``retry_track``: follow the object cloud's seen centre from step to step.  A push moves the object
-        (A's slide carries it 20-40 cm to the edge, so where the attempt started no longer finds it: the
-        laptop sent to A got four A attempts in a row, desk 54); a jump of RETRY_TRACK_JUMP in one step
-        (0.8 m/s, eight times the carry's speed) is the env showing the next object."""
+        (A's slide carries it 20-40 cm towards the edge), so where a failed A attempt started no longer finds
+        it and A never counts as tried on it; a jump of RETRY_TRACK_JUMP in one step (0.8 m/s, eight times
+        the carry's speed) is the env showing the next object."""
         pts = obs.object_points
         if len(pts) < MIN_POINTS:
             return
