@@ -239,7 +239,7 @@ class _Episode:
         ``clear_all`` the arms go home and the next attempt takes another strategy (with
         ``retry_next_strategy`` this one counts as tried ``retry_switch_after`` times on the object); without,
         they hold.  The left arm sent for B to a pad in the table's right-hand corner (desk 48: its touch
-        25 cm across the centre line at the table's back) ended 56 cm from the touch, below the table top,
+        25 cm across the centre line at the table's back) ended 54 cm from the touch, below the table top,
         and the squeeze that followed threw the laptop beside the pad off the table."""
         self.log.append({"index": self.index, "unreachable": miss.miss})
         self.actions, self.index = None, n_stages - 1
