@@ -247,7 +247,6 @@ class _Episode:
             self.tried += [self.tried[-1]] * (int(self.policy.config.retry_switch_after) - self.tried.count(self.tried[-1]))
         if self.policy.config.clear_all:
             self.after = self._after_hold(obs, settle=False)
-        self.stage = "hold"
 
     def _after_hold(self, obs: Observed, settle: bool = True):
         """After the final hold: if the object cloud is aloft, carry it past the usable edge with the

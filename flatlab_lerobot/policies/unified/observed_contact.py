@@ -401,7 +401,7 @@ def mirror_pose(p: np.ndarray, R: np.ndarray, y_centre: float) -> tuple[np.ndarr
 
 
 def a_side_arms(learned: list[str], prob: dict[str, float], side: str | None,
-                 preapproach: bool = False) -> tuple[list[str], str | None]:  # fmt: skip
+                preapproach: bool = False) -> tuple[list[str], str | None]:  # fmt: skip
     """(arms commanded, arm whose learned motion is mirrored onto ``side`` or None) for one of A's grasp
     stages: the rule's arm alone, with its own learned motion, or, where the executor does not command it,
     with the mirror image of the most active learned arm's motion.  In the ``preapproach`` the learned arms
