@@ -45,7 +45,10 @@ def main(argv_=None) -> int:
     )
     ap.add_argument("--preset", default="cpu", help=f"one of {', '.join(presets())} (default cpu)")
     ap.add_argument("--only", nargs="+", metavar="STAGE", help="run these stages (glob patterns) and what they need")
-    ap.add_argument("--force", nargs="+", default=[], metavar="STAGE", help="rerun these stages even if done")
+    ap.add_argument(
+        "--force", nargs="+", default=[], metavar="STAGE",
+        help="rerun these stages from scratch even if done (each one's output folder is discarded first)",
+    )  # fmt: skip
     ap.add_argument("--dry-run", action="store_true", help="print the plan: each stage done / earlier / run / blocked")
     ap.add_argument("--render-only", action="store_true", help="only rebuild the results page and plots")
     ap.add_argument("--headline", action="store_true", help="print the README's headline table and exit")

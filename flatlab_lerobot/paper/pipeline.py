@@ -16,10 +16,11 @@ from); an argv item that is exactly ``${var}`` and names a list is spliced in.  
 Cache.  A stage is **done** when its record exists with the same fingerprint: a hash of its
 expanded command, the preset's environment variables, the recipe files it names (their bytes)
 and its inputs' fingerprints.  The code version is *not* in the fingerprint (the commit is in the
-record); ``--force STAGE`` reruns a stage.  A record without a fingerprint (written before this
-pipeline, or a stage's ``legacy`` file) is an **earlier run**: it is rendered and not rerun unless
-forced.  The commands themselves resume (``flatlab eval``/``primitive-set`` keep finished trials /
-shards, ``lerobot-train`` resumes from its last checkpoint).
+record); ``--force STAGE`` reruns a stage from scratch (its output folder is discarded first, as a
+stale stage's is).  A record without a fingerprint (written before this pipeline, or a stage's
+``legacy`` file) is an **earlier run**: it is rendered and not rerun unless forced.  A missing
+stage's command resumes what an interrupted run left (``flatlab eval``/``primitive-set`` keep
+finished trials / shards, ``lerobot-train`` resumes from its last checkpoint).
 
 Needs.  ``gpu`` (no CUDA here: *needs GPU*), ``weights:<hub id>`` (not in the HF cache: *needs
 weights*), ``module:<python module>``, ``cli:<flatlab subcommand>`` and ``recipe:<path>`` (not in
