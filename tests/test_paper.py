@@ -71,9 +71,11 @@ def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
 
 
 def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
-    # the measured records, less eval_slide's and eval_desk_flatlab's: users of unified_cpu without a record
+    # the measured records, less unified_cpu's own stage record and eval_slide's and eval_desk_flatlab's:
+    # a stage not run here and users of it without a record
     res = tmp_path / "results"
-    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns("plots", "eval_slide.json", "eval_desk_flatlab.json"))
+    skip = ("plots", "unified_cpu.json", "eval_slide.json", "eval_desk_flatlab.json")
+    shutil.copytree(RESULTS, res, ignore=shutil.ignore_patterns(*skip))
     ctx = ctx_for("cpu", tmp_path, res)
     st = P.statuses(ctx)
     assert st["eval_pi0"].state == "blocked" and "needs weights" in st["eval_pi0"].reason
