@@ -56,6 +56,19 @@ def test_sweeps_are_generated_from_one_list_and_reuse_existing_runs():
     assert "executor_train_lambda_pos_10.0" not in ctx.stages  # the default is the base run itself
 
 
+def test_a_stage_names_a_shared_flag_list_and_a_self_reference_fails():
+    ctx = ctx_for("cpu")
+    shared = ctx.preset["vars"]["desk_twelve_switches"]  # args: ["${desk_twelve_switches}"], spliced in
+    v11 = ctx.stages["eval_desk_flatlab_contact_v11h_rot15"].cmd
+    v12 = ctx.stages["eval_desk_flatlab_contact_v12h_rot15"].cmd
+    assert v11[-len(shared) :] == shared
+    assert v12[: len(v11)] == v11 and v12[len(v11) :] == ["--policy.retry_track=true", "--policy.reach_check=true"]
+    env = {"a": ["x", "${b}"], "b": ["${a}"]}
+    with pytest.raises(P.PaperError, match=r"\$\{a\} refers to itself \(through a -> b\)"):
+        P._subst(["${a}"], env, "here")
+    assert P._subst(["${a}", "y"], {"a": ["x", "${c}"], "c": ["z"]}, "here") == ["x", "z", "y"]
+
+
 def test_fingerprint_follows_command_recipe_and_inputs(tmp_path, monkeypatch):
     ctx = ctx_for("tiny", tmp_path)
     fp = P.fingerprints(ctx)

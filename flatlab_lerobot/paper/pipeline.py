@@ -7,7 +7,8 @@ templates), ``presets/<name>.yaml`` the sizes, lists and sweeps of a preset.  No
 what a stage does; a new policy or baseline is a new entry in those files.
 
 Templates.  ``${var}`` is a preset variable (or a field of the ``for:`` item a stage is expanded
-from); an argv item that is exactly ``${var}`` and names a list is spliced in.  At run time
+from); an argv item that is exactly ``${var}`` and names a list is spliced in, its own ``${var}``
+items resolved too (a ``for:`` item's ``args`` may name a list the preset shares).  At run time
 ``{out}`` is the stage's own folder (``--out``/<stage>), ``{<stage>}`` another stage's folder
 (which makes that stage an input), ``{record:<stage>}`` another stage's record path, and an item
 ``{jsonlist:<stage>/<file>#<key>}`` is replaced by the list under ``key`` in that stage's JSON file
@@ -128,15 +129,18 @@ def _expand_sweeps(p: dict) -> None:
             sw["runs"][v] = rid
 
 
-def _subst(value, env: dict, where: str):
-    """``${var}`` in strings / lists / dicts; an item that is exactly ``${var}`` takes the value as is
-    (a list item that is a list is spliced)."""
+def _subst(value, env: dict, where: str, inside: tuple[str, ...] = ()):
+    """``${var}`` in strings / lists / dicts; an item that is exactly ``${var}`` takes the value, its own
+    ``${var}`` items resolved too (a stage's ``args`` may name a preset's shared flag list; a list item
+    that is a list is spliced)."""
     if isinstance(value, str):
         m = VAR.fullmatch(value)
         if m:
             if m[1] not in env:
                 raise PaperError(f"{where}: ${{{m[1]}}} is not a preset variable")
-            return copy.deepcopy(env[m[1]])
+            if m[1] in inside:
+                raise PaperError(f"{where}: ${{{m[1]}}} refers to itself (through {' -> '.join(inside)})")
+            return _subst(copy.deepcopy(env[m[1]]), env, where, (*inside, m[1]))
 
         def one(m):
             if m[1] not in env:
@@ -147,14 +151,14 @@ def _subst(value, env: dict, where: str):
     if isinstance(value, list):
         out = []
         for item in value:
-            v = _subst(item, env, where)
+            v = _subst(item, env, where, inside)
             if isinstance(item, str) and VAR.fullmatch(item) and isinstance(v, list):
                 out.extend(v)
             elif v is not None or not (isinstance(item, str) and VAR.fullmatch(item)):
                 out.append(v)
         return out
     if isinstance(value, dict):
-        return {k: _subst(v, env, where) for k, v in value.items()}
+        return {k: _subst(v, env, where, inside) for k, v in value.items()}
     return value
 
 
