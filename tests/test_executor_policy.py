@@ -439,6 +439,40 @@ def test_object_table_frame_sits_on_the_table_under_the_object():
         _policy(feats, frame_center="object_table", table_quantile=0.7)
 
 
+def test_object_top_frame_sits_on_the_seen_top_of_the_object():
+    """frame_center="object_top": x, y from the object cloud's seen points, z their ``top_quantile``
+    height (the highest with 1.0), never an unseen row's 0; the scene mean with none seen; a whole-scene
+    translation moves the origin and the predicted poses by the same amount; a thicker object (its top
+    raised, the table where it was) raises the origin by the same amount."""
+    feats = {C.OBS_OBJECT_CLOUD: PolicyFeature(FeatureType.STATE, (32, 3))}
+    pol = _policy(feats, frame_center="object_top", top_quantile=1.0)
+    pol.eval()
+    b = _batch(B=3)
+    cloud = b[C.OBS_POINTCLOUD].clone()
+    cloud[:, :100, 2] = 0.75  # the table
+    cloud[:, 100:, 2] = 0.75 + torch.linspace(0.0, 0.012, 28)  # the object, its top 12 mm above the table
+    b[C.OBS_POINTCLOUD] = cloud
+    obj = cloud[:, 100:].clone()
+    obj[:, 20:] = 0.0  # unseen rows (their 0 would be the highest otherwise: below the table is negative)
+    obj[:, :, 2] -= 1.0 * (obj[:, :, 2] != 0)  # a table below z = 0, so an unseen row's 0 is above every point
+    obj[2] = 0.0  # nothing seen
+    b[C.OBS_OBJECT_CLOUD] = obj
+    c = pol._center(b, pol._cloud(cloud))
+    torch.testing.assert_close(c[:2, :2], obj[:2, :20, :2].mean(1))
+    torch.testing.assert_close(c[:2, 2], obj[:2, :20, 2].max(1).values)
+    torch.testing.assert_close(c[2], pol._cloud(cloud)[2].mean(0))
+    med = _policy(feats, frame_center="object_top", top_quantile=0.51)._center(b, pol._cloud(cloud))
+    assert (med[:2, 2] < c[:2, 2] - 0.004).all()  # about the middle of the 0-12 mm ramp
+    shift = torch.tensor([0.02, 0.01, -0.1])
+    p1, p2 = pol.predict_world(b)[1], pol.predict_world(_translated(b, shift))[1]
+    torch.testing.assert_close(p2["end_pos"], p1["end_pos"] + shift, atol=1e-4, rtol=0)
+    thick = dict(b)
+    thick[C.OBS_OBJECT_CLOUD] = obj + torch.tensor([0.0, 0.0, 0.02]) * (obj.abs().sum(-1, keepdim=True) > 0)
+    torch.testing.assert_close(pol._center(thick, pol._cloud(cloud))[:2, 2], c[:2, 2] + 0.02)
+    with pytest.raises(ValueError, match="top_quantile"):
+        _policy(feats, frame_center="object_top", top_quantile=0.4)
+
+
 def test_object_encoder_reads_the_object_cloud_shape_in_the_model_frame():
     """object_mlp: a PointNet on the object cloud's seen points joins F_env.  Turning the object cloud
     about its own centre (same frame origin, same scene cloud) changes the prediction only with the

@@ -49,8 +49,8 @@ OBS_POINTCLOUD = "observation.pointcloud"
 OBS_PRIMITIVE = "observation.primitive"
 OBS_TCP_STATE = "observation.tcp_state"
 OBS_OBJECT_CLOUD = "observation.object_pointcloud"
-FRAME_CENTERS = ("scene", "object", "object_table")
-OBJECT_FRAMES = ("object", "object_table")  # frames that read observation.object_pointcloud
+FRAME_CENTERS = ("scene", "object", "object_table", "object_top")
+OBJECT_FRAMES = ("object", "object_table", "object_top")  # frames that read observation.object_pointcloud
 TCP_STATE_DIM = 8 * len(ARMS)
 
 ARM_FIELDS = (("active", 1), ("start_pos", 3), ("start_quat", 4), ("end_pos", 3), ("end_quat", 4),
@@ -113,9 +113,13 @@ class FlatLabExecutorConfig(PreTrainedConfig):
     # poses are then predicted relative to the object, not to the table; "object_table" = the object's
     # mean in x, y and the table plane in z (the ``table_quantile`` of the scene cloud's heights: the
     # workspace crop starts at the table top, so its lowest points are the table): heights are then
-    # predicted above the table, which is what B's squeeze and C's pinch heights are
+    # predicted above the table, which is what B's squeeze and C's pinch heights are; "object_top" = the
+    # object's mean in x, y and its seen top in z (the ``top_quantile`` of the object cloud's seen heights):
+    # heights are then predicted from the object's top, which is where A's touch and press act (the expert
+    # presses 1 mm into the top), so the network need not read a 5-mm thickness off the cloud to land there
     frame_center: str = "scene"
     table_quantile: float = 0.05
+    top_quantile: float = 0.95
     # a second encoder on the segmented object cloud (``observation.object_pointcloud``, in the same model
     # frame): a PointNet (shared MLP of these widths + max pool over the seen points) whose feature joins
     # F_env.  In the 1024-point scene cloud a thin object is a few dozen points a few mm above the table;
@@ -174,6 +178,8 @@ class FlatLabExecutorConfig(PreTrainedConfig):
             bad("frame_center", f"must be one of {FRAME_CENTERS}, got {self.frame_center!r}")
         if not 0.0 <= self.table_quantile < 0.5:
             bad("table_quantile", f"must be in [0, 0.5), got {self.table_quantile}")
+        if not 0.5 < self.top_quantile <= 1.0:
+            bad("top_quantile", f"must be in (0.5, 1], got {self.top_quantile}")
         n = len(self.sa_npoints)
         if n == 0 or not (len(self.sa_radii) == len(self.sa_nsamples) == len(self.sa_mlps) == n):
             bad("sa_npoints", "sa_npoints, sa_radii, sa_nsamples and sa_mlps need the same non-zero length")

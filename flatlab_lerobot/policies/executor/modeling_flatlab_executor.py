@@ -100,6 +100,15 @@ def mean_predictions(passes: list[list[dict[str, Tensor]]]) -> list[dict[str, Te
     return out
 
 
+def seen_quantile_z(cloud: Tensor, seen: Tensor, q: float) -> Tensor:
+    """(B,) the ``q`` quantile of the heights of each cloud's seen points (``seen`` (B, K) bool; nearest
+    rank from the top: q = 1 is the highest seen point).  A row with none seen gives -inf."""
+    z = torch.where(seen, cloud[..., 2], torch.full_like(cloud[..., 2], -math.inf))
+    z = z.sort(dim=1, descending=True).values
+    k = ((1.0 - q) * (seen.sum(1) - 1).clamp(min=0).float()).round().long()  # rank among the seen points
+    return torch.gather(z, 1, k[:, None])[:, 0]
+
+
 class SceneFrame:
     """The model frame of a batch: ``x' = s * Rz(phi) (x - c)`` with c the cloud mean (paper App. B:
     clouds normalised to zero mean), s and phi the augmentation (1 and 0 at eval).  Positions and
@@ -214,7 +223,8 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         """(B, 3) origin of the model frame: the scene cloud's mean, or (``frame_center="object"``) the
         mean of the object cloud's seen points (all-zero rows are unseen; none seen: the scene mean),
         or (``"object_table"``) that mean in x, y with z on the table plane (``table_quantile`` of the
-        scene cloud's heights)."""
+        scene cloud's heights), or (``"object_top"``) that mean in x, y with z at the object's seen top
+        (``top_quantile`` of its seen points' heights)."""
         c = cloud.mean(1)
         if self.config.frame_center not in OBJECT_FRAMES:
             return c
@@ -226,6 +236,9 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         if self.config.frame_center == "object_table":
             z = torch.quantile(cloud[..., 2], self.config.table_quantile, dim=1)
             c = torch.cat([c[:, :2], z[:, None]], 1)
+        elif self.config.frame_center == "object_top":
+            c = torch.cat([c[:, :2], torch.where(n[:, 0] > 0, seen_quantile_z(obj, seen > 0, self.config.top_quantile),
+                                                 c[:, 2])[:, None]], 1)  # fmt: skip
         return c
 
     def _frame(self, cloud: Tensor, c: Tensor | None = None, turn: float = 0.0) -> SceneFrame:
@@ -410,7 +423,7 @@ class FlatLabExecutorPolicy(PreTrainedPolicy):
         proprio: (16,) / (B, 16) per arm measured TCP pos (3), quat wxyz (4), finger opening (1);
         required when ``config.use_proprio``.
         object_cloud: (K, 3) / (B, K, 3) world-frame segmented object cloud (env obs
-        ``object_pointcloud``); required when ``config.frame_center`` is "object" / "object_table", ignored otherwise.
+        ``object_pointcloud``); required when ``config.frame_center`` is an object frame ("object", "object_table", "object_top"), ignored otherwise.
         tta: test-time augmentation passes (default ``config.tta``; see ``predict_world``).
         members: further executors that read the same inputs (an ensemble: the same recipe trained with
         other seeds); the poses are the mean of this executor's and theirs (``mean_predictions``).
