@@ -18,6 +18,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     cap_slide,
     full_slide,
     contact_heights,
+    continued_motion,
     object_top,
     observed_motion,
     overhang_mid,
@@ -241,6 +242,25 @@ def test_from_hand_starts_the_experts_current_stages_at_the_hand_and_caps_the_sl
         a, _, log = observed_motion(strategy, index, prim, p0, p1, disc, TABLE, EDGE, False, lambda: hand,
                                     from_hand=True)  # fmt: skip
         assert a[:2] == pytest.approx(p0[:2]) and "from_hand" not in log, prim
+
+
+def test_continue_from_hand_moves_the_learned_motion_to_the_hand_and_keeps_its_displacement_and_turn():
+    """continue_from_hand (contact=learned): the learned motion starts exactly at the commanded hand, in its
+    orientation, and moves by the learned displacement and turns by the learned turn; nothing else."""
+    from scipy.spatial.transform import Rotation
+
+    p0, p1 = np.r_[0.14, -0.005, 0.80], np.r_[0.40, 0.01, 0.79]
+    R0 = Rotation.from_euler("xyz", [180, 0, 10], degrees=True).as_matrix()
+    R1 = Rotation.from_euler("z", 25, degrees=True).as_matrix() @ R0  # a learned 25-degree turn about z
+    hand, R_hand = np.r_[0.13, 0.01, 0.759], Rotation.from_euler("xyz", [180, 5, 0], degrees=True).as_matrix()
+    (a, Ra), (b, Rb) = continued_motion(p0, R0, p1, R1, hand, R_hand)
+    assert a == pytest.approx(hand) and Ra == pytest.approx(R_hand)
+    assert b - a == pytest.approx(p1 - p0)
+    assert Rb @ Ra.T == pytest.approx(R1 @ R0.T)  # the same turn, in the world frame
+    assert Rotation.from_matrix(Rb @ Ra.T).magnitude() == pytest.approx(np.radians(25))
+    with pytest.raises(ValueError, match="continue_from_hand=true needs --policy.contact=learned"):
+        FlatLabUnifiedConfig(contact="observed", continue_from_hand=True)
+    assert FlatLabUnifiedConfig(continue_from_hand=True).continue_from_hand
 
 
 def test_b_squeeze_from_the_hand_is_the_experts_length_and_the_lift_straight():

@@ -162,7 +162,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "contact_a_touch": "true", "clear_all": "true", "quick_retry": "true", "contact_a_pusher_side": "true",
       "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true", "reach_check": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
-      "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"}],
+      "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"},
+     {"strategy": "A", "continue_from_hand": "true", "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -184,7 +185,7 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
     np.testing.assert_array_equal(acts[0], acts[1])
     np.testing.assert_array_equal(acts[0], acts[2])
     assert len({p.strategies[0] for p in pols}) == 1 and pols[0].stage_indices[0] >= 1
-    if overrides:  # the touch's heights were set from the object cloud
+    if overrides.get("contact") == "observed":  # the touch's heights were set from the object cloud
         posed = [d for d in pols[0].decisions[0] if "heights" in d]
         touch = [d for d in posed if d["primitive"] == "touch"]
         assert touch and all(h["observed"][1] is not None for h in touch[0]["heights"].values())
@@ -284,12 +285,16 @@ def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monke
         assert max(widths) > 0.0
 
 
-@pytest.mark.parametrize("from_hand", [False, True])
+@pytest.mark.parametrize("from_hand", [False, True, "learned"])
 def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, from_hand):
     """With contact_from_hand, A's press, slide and release start where the hand is: no joint-space transit
     ("move") runs between the touch and the end of the release, so nothing but the capped slide pushes the
-    object.  The untrained tiny executor's learned starts lie elsewhere, so without it they do."""
-    pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_from_hand=str(from_hand).lower())
+    object.  The untrained tiny executor's learned starts lie elsewhere, so without it they do.  "learned":
+    continue_from_hand, the same with every pose learned (contact=learned)."""
+    if from_hand == "learned":
+        pol = _load(tiny["artifact"], strategy="A", continue_from_hand="true")
+    else:
+        pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_from_hand=str(from_hand).lower())
     env = _env()
     obs, _ = env.reset(seed=0)
     pol.reset()
@@ -304,6 +309,9 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
     during = [stage for index, stage in seq if 1 <= index <= 3]  # press, slide, release of the first pass
     assert {"press", "slide", "release"} <= set(during), seq
     assert ("move" in during) is (not from_hand), during
+    if from_hand == "learned":  # each moving arm of press, slide, release logged as started at the hand
+        logged = [e for e in pol.decisions[0] if 1 <= e.get("index", -1) <= 3 and e.get("arms")]
+        assert logged and all(e["heights"][a] == {"from_hand": True} for e in logged for a in e["arms"]), logged
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

@@ -60,10 +60,12 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     a_side_arms,
     b_aligned,
     b_centred,
+    continued_motion,
     mirror_pose,
     object_footprint_x,
     observed_motion,
     seen_centre,
+    starts_at_hand,
 )
 from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
@@ -352,10 +354,12 @@ class _Episode:
             arms, source, y_centre, arm_log = self._a_grasp_arms(arms, prob, obs)
         elif observed and self.policy.config.contact_a_pusher_side and self.strategy == "A" and self.index < A_PREAPPROACH:
             arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
+        commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
+        continued = (self.policy.config.continue_from_hand
+                     and starts_at_hand(self.strategy, self.index, True))  # contact=learned only (config)
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
-            commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
         for a in arms:
             src = source or a
             (p0, q0), (p1, q1) = poses[src]["start"], poses[src]["end"]
@@ -389,6 +393,9 @@ class _Episode:
                 if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
                     R0 = commanded_fk()[a][1]
                     duration = max(duration, spec.transit)
+            elif continued:  # continue_from_hand: from the commanded hand, by the learned displacement and turn
+                (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a])
+                heights[a] = {"from_hand": True}
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
@@ -400,7 +407,7 @@ class _Episode:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed else {}), **arm_log})  # fmt: skip
+                         "duration": duration, **({"heights": heights} if observed or continued else {}), **arm_log})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
     def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
