@@ -258,9 +258,12 @@ def test_continue_from_hand_moves_the_learned_motion_to_the_hand_and_keeps_its_d
     assert b - a == pytest.approx(p1 - p0)
     assert Rb @ Ra.T == pytest.approx(R1 @ R0.T)  # the same turn, in the world frame
     assert Rotation.from_matrix(Rb @ Ra.T).magnitude() == pytest.approx(np.radians(25))
-    with pytest.raises(ValueError, match="continue_from_hand=true needs --policy.contact=learned"):
-        FlatLabUnifiedConfig(contact="observed", continue_from_hand=True)
-    assert FlatLabUnifiedConfig(continue_from_hand=True).continue_from_hand
+    with pytest.raises(ValueError, match="continue_from_hand=A needs --policy.contact=learned"):
+        FlatLabUnifiedConfig(contact="observed", continue_from_hand="A")
+    for bad in ("D", "AA", "A,C", "a"):
+        with pytest.raises(ValueError, match="--policy.continue_from_hand: distinct letters of ABC"):
+            FlatLabUnifiedConfig(continue_from_hand=bad)
+    assert FlatLabUnifiedConfig(continue_from_hand="AC").continue_from_hand == "AC"
 
 
 def test_b_squeeze_from_the_hand_is_the_experts_length_and_the_lift_straight():

@@ -163,7 +163,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true", "reach_check": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"},
-     {"strategy": "A", "continue_from_hand": "true", "max_push_passes": "1"}],
+     {"strategy": "A", "continue_from_hand": "AC", "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -285,14 +285,16 @@ def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monke
         assert max(widths) > 0.0
 
 
-@pytest.mark.parametrize("from_hand", [False, True, "learned"])
+@pytest.mark.parametrize("from_hand", [False, True, "learned", "learned_for_B_C"])
 def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, from_hand):
     """With contact_from_hand, A's press, slide and release start where the hand is: no joint-space transit
     ("move") runs between the touch and the end of the release, so nothing but the capped slide pushes the
     object.  The untrained tiny executor's learned starts lie elsewhere, so without it they do.  "learned":
-    continue_from_hand, the same with every pose learned (contact=learned)."""
+    continue_from_hand, the same with every pose learned (contact=learned), for A; not when it names B and C only."""
     if from_hand == "learned":
-        pol = _load(tiny["artifact"], strategy="A", continue_from_hand="true")
+        pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A")
+    elif from_hand == "learned_for_B_C":
+        pol, from_hand = _load(tiny["artifact"], strategy="A", continue_from_hand="BC"), False
     else:
         pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_from_hand=str(from_hand).lower())
     env = _env()

@@ -140,12 +140,15 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
-    # with contact=learned: A's and B's stages that the expert starts where the hand is (StageSpec.start ==
-    # "current": A's press, slide, release, grasp, lift; B's squeeze, lift) start at the commanded hand (the
-    # policy's own joint targets, by forward kinematics) and move by the executor's predicted displacement and
-    # turn, instead of a joint-space transit to the learned start first; nothing read from the clouds changes
-    # (contact=observed has its own contact_from_hand, with the observed heights)
-    continue_from_hand: bool = False
+    # with contact=learned, for the strategies whose letters it holds (e.g. AC; empty: off): every stage that the expert
+    # starts where the hand is (StageSpec.start == "current": A's press, slide, release, grasp, lift; B's
+    # squeeze, lift; C's squeeze, release, moves, grasp, lift) starts at the commanded hand (the policy's own
+    # joint targets, by forward kinematics) and moves by the executor's predicted displacement and turn,
+    # instead of a joint-space transit to the learned start first; nothing read from the clouds changes
+    # (contact=observed has its own contact_from_hand, with the observed heights).  Measured on Train (stop 48,
+    # docs/unified.md): A and C gain, B loses (its learned squeeze, no longer relaxed by the transit, presses
+    # too far into a board)
+    continue_from_hand: str = ""
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -198,8 +201,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                      "contact_a_touch", "contact_a_pusher_side", "contact_b_centred"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
+        letters, cont = STRATEGY_CHOICES[1:], self.continue_from_hand
+        if len(set(cont)) < len(cont) or not set(cont) <= set(letters):
+            raise ValueError(f"--policy.continue_from_hand: distinct letters of {''.join(letters)} (e.g. AC; empty: off), "
+                             f"got {self.continue_from_hand!r}")
         if self.continue_from_hand and self.contact != "learned":
-            raise ValueError("--policy.continue_from_hand=true needs --policy.contact=learned "
+            raise ValueError(f"--policy.continue_from_hand={self.continue_from_hand} needs --policy.contact=learned "
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")

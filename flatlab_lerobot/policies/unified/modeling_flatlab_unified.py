@@ -65,7 +65,6 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_footprint_x,
     observed_motion,
     seen_centre,
-    starts_at_hand,
 )
 from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
@@ -355,8 +354,7 @@ class _Episode:
         elif observed and self.policy.config.contact_a_pusher_side and self.strategy == "A" and self.index < A_PREAPPROACH:
             arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
         commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
-        continued = (self.policy.config.continue_from_hand
-                     and starts_at_hand(self.strategy, self.index, True))  # contact=learned only (config)
+        continued = self.strategy in self.policy.config.continue_from_hand and spec.start == "current"  # learned only
         if observed:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
