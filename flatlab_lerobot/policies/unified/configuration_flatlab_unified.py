@@ -59,10 +59,15 @@ STATE_DIM, CELL_DIM, ACTION_DIM = 16, 7, 16
 GENERATOR_INPUT = "observation.object_pointcloud"  # the generator must read the object cloud
 
 
+def distinct_strategies(strategies) -> bool:
+    """Whether ``strategies`` (a list, or a string of letters) are distinct letters of A / B / C."""
+    return len(set(strategies)) == len(strategies) and set(strategies) <= set(STRATEGY_CHOICES[1:])
+
+
 def check_alt_strategies(strategies: list[str], has_alt: bool, flag: str = "--policy.alt_executor_strategies") -> None:
     """Raise (naming ``flag``) unless ``strategies`` are distinct letters of A / B / C, given exactly when a
     second executor is: the one rule of the config and of ``flatlab unified-build --alt-strategies``."""
-    if len(set(strategies)) < len(strategies) or not set(strategies) <= set(STRATEGY_CHOICES[1:]):
+    if not distinct_strategies(strategies):
         raise ValueError(f"{flag}: distinct strategies of {list(STRATEGY_CHOICES[1:])}, got {list(strategies)!r}")
     if bool(strategies) != has_alt:
         raise ValueError(f"{flag}: names the strategies the second executor poses; give both or neither "
@@ -140,8 +145,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
-    # with contact=learned, for the strategies whose letters it holds (e.g. AC; empty: off): every stage that the expert
-    # starts where the hand is (StageSpec.start == "current": A's press, slide, release, grasp, lift; B's
+    # with contact=learned, for the strategies whose letters it holds (e.g. AC; empty: off): every stage that
+    # the expert starts where the hand is (StageSpec.start == "current": A's press, slide, release, grasp, lift; B's
     # squeeze, lift; C's squeeze, release, moves, grasp, lift) starts at the commanded hand (the policy's own
     # joint targets, by forward kinematics) and moves by the executor's predicted displacement and turn,
     # instead of a joint-space transit to the learned start first; nothing read from the clouds changes
@@ -201,10 +206,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                      "contact_a_touch", "contact_a_pusher_side", "contact_b_centred"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
-        letters, cont = STRATEGY_CHOICES[1:], self.continue_from_hand
-        if len(set(cont)) < len(cont) or not set(cont) <= set(letters):
-            raise ValueError(f"--policy.continue_from_hand: distinct letters of {''.join(letters)} (e.g. AC; empty: off), "
-                             f"got {self.continue_from_hand!r}")
+        if not distinct_strategies(self.continue_from_hand):
+            raise ValueError(f"--policy.continue_from_hand: distinct letters of {''.join(STRATEGY_CHOICES[1:])} "
+                             f"(e.g. AC; empty: off), got {self.continue_from_hand!r}")
         if self.continue_from_hand and self.contact != "learned":
             raise ValueError(f"--policy.continue_from_hand={self.continue_from_hand} needs --policy.contact=learned "
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")

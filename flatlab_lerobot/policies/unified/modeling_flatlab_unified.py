@@ -65,6 +65,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_footprint_x,
     observed_motion,
     seen_centre,
+    turned_from_hand,
 )
 from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
 from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
@@ -384,8 +385,7 @@ class _Episode:
                 if turn is not None:
                     heights[a]["b_align_deg"] = math.degrees(turn)
                 if heights[a].get("from_hand"):  # the hand's orientation, turned as learned: no transit first
-                    R_hand = commanded_fk()[a][1]
-                    R0, R1 = R_hand, R1 @ R0.T @ R_hand
+                    R0, R1 = turned_from_hand(R0, R1, commanded_fk()[a][1])
                 if heights[a].get("still") or heights[a].get("steady"):  # A's grasp (contact_a_grasp): the
                     R1 = R0  # fingers close, the hand stays; B's squeeze, lift (contact_b_steady): no turn
                 if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time

@@ -422,14 +422,22 @@ def starts_at_hand(strategy: str, index: int, from_hand: bool) -> bool:
     return from_hand and strategy in FROM_HAND_STRATEGIES and STAGE_SPECS[strategy][index].start == "current"
 
 
+def turned_from_hand(R0: np.ndarray, R1: np.ndarray, R_hand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A learned turn ``R0 -> R1`` started in the hand's orientation: ``(R_hand, R1 R0^T R_hand)``, the same
+    turn in the world frame (``contact_from_hand`` and ``continue_from_hand`` alike)."""
+    R_hand = np.asarray(R_hand, float)
+    return R_hand, R1 @ R0.T @ R_hand
+
+
 def continued_motion(p0: np.ndarray, R0: np.ndarray, p1: np.ndarray, R1: np.ndarray, hand: np.ndarray,
                      R_hand: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """``continue_from_hand`` (contact=learned): the learned motion ``(p0, R0) -> (p1, R1)`` moved to start at
     the commanded hand ``(hand, R_hand)``: the same displacement ``p1 - p0`` and the same turn ``R1 R0^T``
-    (world frame), so the runner needs no transit to the start.  Reads no cloud: proprioception only."""
+    (world frame, :func:`turned_from_hand`), so the runner needs no transit to the start.  Reads no cloud:
+    proprioception only."""
     here = np.asarray(hand, float)
-    R_hand = np.asarray(R_hand, float)
-    return (here.copy(), R_hand), (here + (np.asarray(p1, float) - np.asarray(p0, float)), R1 @ R0.T @ R_hand)
+    Ra, Rb = turned_from_hand(R0, R1, R_hand)
+    return (here.copy(), Ra), (here + (np.asarray(p1, float) - np.asarray(p0, float)), Rb)
 
 
 def b_from_hand(primitive: str, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
