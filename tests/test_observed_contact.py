@@ -266,6 +266,22 @@ def test_continue_from_hand_moves_the_learned_motion_to_the_hand_and_keeps_its_d
     assert FlatLabUnifiedConfig(continue_from_hand="AC").continue_from_hand == "AC"
 
 
+def test_continued_slide_can_stay_level_and_press_go_deeper():
+    """continue_level_slide drops the learned slide's rise (a learned +1.4 cm over a 25 cm slide lifted the
+    finger off a cork coaster, disk_cork_coaster seed 1000) and keeps its horizontal part;
+    continue_press_deeper lowers only the press's end; both need continue_from_hand."""
+    R = np.eye(3)
+    p0, p1, hand = np.r_[-0.02, 0.02, 0.767], np.r_[0.237, 0.03, 0.781], np.r_[-0.016, 0.016, 0.766]
+    (a, _), (b, _) = continued_motion(p0, R, p1, R, hand, R, level=True)
+    assert b[2] == pytest.approx(hand[2]) and b[:2] - a[:2] == pytest.approx((p1 - p0)[:2])
+    (a, _), (b, _) = continued_motion(p0, R, p1, R, hand, R, deeper=0.004)
+    assert a == pytest.approx(hand) and b - a == pytest.approx(p1 - p0 - [0, 0, 0.004])
+    with pytest.raises(ValueError, match="continue_level_slide / --policy.continue_press_deeper need"):
+        FlatLabUnifiedConfig(continue_level_slide=True)
+    with pytest.raises(ValueError, match="continue_press_deeper: metres in"):
+        FlatLabUnifiedConfig(continue_from_hand="A", continue_press_deeper=-0.001)
+
+
 def test_b_squeeze_from_the_hand_is_the_experts_length_and_the_lift_straight():
     from flatlab_lerobot.strategies.b_squeeze import B_SQUEEZE
 

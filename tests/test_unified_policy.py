@@ -163,7 +163,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "retry_next_strategy": "true", "retry_switch_after": "2", "retry_track": "true", "reach_check": "true"},
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"},
-     {"strategy": "A", "continue_from_hand": "AC", "max_push_passes": "1"}],
+     {"strategy": "A", "continue_from_hand": "AC", "continue_level_slide": "true", "continue_press_deeper": "0.004",
+      "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -285,7 +286,7 @@ def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monke
         assert max(widths) > 0.0
 
 
-@pytest.mark.parametrize("from_hand", [False, True, "learned", "learned_for_B_C"])
+@pytest.mark.parametrize("from_hand", [False, True, "learned", "learned_for_B_C", "learned_level_deeper"])
 def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, from_hand):
     """With contact_from_hand, A's press, slide and release start where the hand is: no joint-space transit
     ("move") runs between the touch and the end of the release, so nothing but the capped slide pushes the
@@ -293,6 +294,9 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
     continue_from_hand, the same with every pose learned (contact=learned), for A; not when it names B and C only."""
     if from_hand == "learned":
         pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A")
+    elif from_hand == "learned_level_deeper":
+        pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_level_slide="true",
+                    continue_press_deeper="0.004")
     elif from_hand == "learned_for_B_C":
         pol, from_hand = _load(tiny["artifact"], strategy="A", continue_from_hand="BC"), False
     else:
@@ -314,6 +318,11 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
     if from_hand == "learned":  # each moving arm of press, slide, release logged as started at the hand
         logged = [e for e in pol.decisions[0] if 1 <= e.get("index", -1) <= 3 and e.get("arms")]
         assert logged and all(e["heights"][a] == {"from_hand": True} for e in logged for a in e["arms"]), logged
+    if from_hand == "learned_level_deeper":  # the slide kept level, the press 4 mm deeper, the release as learned
+        want = {1: {"from_hand": True, "deeper": 0.004}, 2: {"from_hand": True, "level": True}, 3: {"from_hand": True}}
+        logged = [e for e in pol.decisions[0] if 1 <= e.get("index", -1) <= 3 and e.get("arms")]
+        assert {e["index"] for e in logged} == {1, 2, 3}, logged
+        assert all(e["heights"][a] == want[e["index"]] for e in logged for a in e["arms"]), logged
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

@@ -154,6 +154,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # docs/unified.md): A and C gain, B loses (its learned squeeze, no longer relaxed by the transit, presses
     # too far into a board)
     continue_from_hand: str = ""
+    # with continue_from_hand: a slide continued from the hand keeps the hand's height (the learned
+    # displacement's vertical part dropped), as the expert's slide along the table is level in every demo
+    continue_level_slide: bool = False
+    # with continue_from_hand: a press continued from the hand ends this much (m) lower than learned, so the
+    # hand presses into a thin object instead of resting a few mm above it (>= 0)
+    continue_press_deeper: float = 0.0
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -212,6 +218,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if self.continue_from_hand and self.contact != "learned":
             raise ValueError(f"--policy.continue_from_hand={self.continue_from_hand} needs --policy.contact=learned "
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")
+        if (self.continue_level_slide or self.continue_press_deeper) and not self.continue_from_hand:
+            raise ValueError("--policy.continue_level_slide / --policy.continue_press_deeper need "
+                             "--policy.continue_from_hand (the stages they change start at the hand)")
+        if not 0.0 <= self.continue_press_deeper <= 0.02:
+            raise ValueError(f"--policy.continue_press_deeper: metres in [0, 0.02], got {self.continue_press_deeper}")
         if self.contact_a_backoff and not self.contact_a_grasp:
             raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
         if self.retry_next_strategy and not self.clear_all:

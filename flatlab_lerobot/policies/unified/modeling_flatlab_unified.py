@@ -392,8 +392,11 @@ class _Episode:
                     R0 = commanded_fk()[a][1]
                     duration = max(duration, spec.transit)
             elif continued:  # continue_from_hand: from the commanded hand, by the learned displacement and turn
-                (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a])
-                heights[a] = {"from_hand": True}
+                cfg = self.policy.config
+                level = cfg.continue_level_slide and spec.primitive == "slide"
+                deeper = cfg.continue_press_deeper if spec.primitive == "press" else 0.0
+                (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a], level=level, deeper=deeper)
+                heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed

@@ -430,14 +430,22 @@ def turned_from_hand(R0: np.ndarray, R1: np.ndarray, R_hand: np.ndarray) -> tupl
 
 
 def continued_motion(p0: np.ndarray, R0: np.ndarray, p1: np.ndarray, R1: np.ndarray, hand: np.ndarray,
-                     R_hand: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+                     R_hand: np.ndarray, level: bool = False,
+                     deeper: float = 0.0) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """``continue_from_hand`` (contact=learned): the learned motion ``(p0, R0) -> (p1, R1)`` moved to start at
     the commanded hand ``(hand, R_hand)``: the same displacement ``p1 - p0`` and the same turn ``R1 R0^T``
-    (world frame, :func:`turned_from_hand`), so the runner needs no transit to the start.  Reads no cloud:
+    (world frame, :func:`turned_from_hand`), so the runner needs no transit to the start.  ``level`` (a
+    slide, ``continue_level_slide``): the displacement's vertical part is dropped, the hand slides at its
+    height as a slide along the table does (the expert's is level in every demo); ``deeper`` (a press,
+    ``continue_press_deeper``): the press ends that much lower than learned.  Reads no cloud:
     proprioception only."""
     here = np.asarray(hand, float)
     Ra, Rb = turned_from_hand(R0, R1, R_hand)
-    return (here.copy(), Ra), (here + (np.asarray(p1, float) - np.asarray(p0, float)), Rb)
+    d = np.asarray(p1, float) - np.asarray(p0, float)
+    if level:
+        d[2] = 0.0
+    d[2] -= deeper
+    return (here.copy(), Ra), (here + d, Rb)
 
 
 def b_from_hand(primitive: str, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
