@@ -1,0 +1,71 @@
+"""Trace one ``flatlab eval`` trial: at each change of stage, the object's position and both hands' positions.
+
+    python scripts/trace_episode.py --policy outputs/paper/cpu/unified_cpu_one_rot15 --object disk_vinyl_lp \
+        --trial 0 -- --env.pointcloud_cameras=[front,top,left,right] --env.n_points=4096 ... --policy.executor_tta=8
+
+Runs the trial exactly as ``flatlab eval`` does (its Evaluator: lerobot's ``eval_policy``, seed ``--seed`` +
+``--trial``) and prints one line per stage the policy enters: step, stage index, primitive, the object's
+position and both TCP positions (m, world frame), then the policy's per-stage decisions (``flatlab_unified``).
+``--policy oracle`` (or another built-in) traces the scripted expert on the same seed.  The trace reads the
+simulator's state for the person looking; the policy never sees it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from flatlab_lerobot.env import FlatLabEnv
+from flatlab_lerobot.evaluation.protocol import Evaluator, resolve_policy
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policy", required=True, help="pretrained_model folder or a built-in policy name (oracle, ...)")
+    ap.add_argument("--object", required=True, help="catalog object id")
+    ap.add_argument("--trial", type=int, default=0, help="flatlab eval's trial index (episode seed = --seed + trial)")
+    ap.add_argument("--seed", type=int, default=1000)
+    args, extra = ap.parse_known_args(argv)
+    extra = [a for a in extra if a != "--"]
+    bad = [a for a in extra if not a.startswith(("--env.", "--policy."))]
+    if bad:
+        ap.error(f"after --: only --env.* and --policy.* flags, got {bad}")
+    policy, builtin = resolve_policy(args.policy)
+    spec = {"policy": policy, "builtin": builtin, "rename_map": {}, "seed": args.seed,
+            "env_args": [a.replace("--env.", "--", 1) for a in extra if a.startswith("--env.")],
+            "policy_args": [a.replace("--policy.", "--", 1) for a in extra if a.startswith("--policy.")]}  # fmt: skip
+    ev = Evaluator(spec)
+    rows: list[tuple] = []
+    step = FlatLabEnv.step
+
+    def traced(env, action):
+        out = step(env, action)
+        index = (getattr(ev.policy, "stage_indices", None) or [-1])[0]
+        stage = (getattr(ev.policy, "stages", None) or [""])[0]
+        pos = [env.sim.object_pose()[0]] + [env.sim.tcp_pose(a)[0] for a in ("left", "right")]
+        rows.append((env.steps, index, str(stage), *np.round(np.concatenate(pos), 3)))
+        return out
+
+    FlatLabEnv.step = traced
+    try:
+        rec = next(ev.run_object(args.object, [args.trial]))
+    finally:
+        FlatLabEnv.step = step
+    print(json.dumps({k: rec[k] for k in ("object_id", "seed", "strategy", "G", "failure_reason", "final_clearance_m", "steps")}))
+    print("step  idx stage     object (x y z)          left hand (x y z)       right hand (x y z)")
+    fmt = "%4d %4d %-8s" + "  %6.3f %6.3f %6.3f" * 3
+    for k, r in enumerate(rows):
+        if k == 0 or (r[1], r[2]) != (rows[k - 1][1], rows[k - 1][2]):
+            print(fmt % r)
+    if rows:
+        print("end:", fmt % rows[-1])
+    for entry in getattr(ev.policy, "decisions", [[]])[0] if hasattr(ev.policy, "decisions") else []:
+        print({k: v for k, v in entry.items() if k not in ("active",)})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
