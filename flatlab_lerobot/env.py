@@ -8,6 +8,10 @@ Observation (a ``Dict``):
   ``pointcloud_cameras``, cropped to the workspace box above the table, sampled to a fixed size.
 * ``object_pointcloud`` (n_object_points, 3) float32: the pixels the segmentation assigns to the
   object (rigid geoms / the cloth flex), sampled to a fixed size (zeros when the object is not seen).
+  Both clouds are sampled with a generator of their own per step (seeded from the reset's ``np_random``
+  and the step index), so the clouds of step k do not depend on which earlier steps rendered theirs:
+  :meth:`FlatLabEnv.skip_clouds` lets the next step repeat the last clouds without rendering
+  (``flatlab eval`` does, for a policy that says it will not read them) and changes nothing else.
 * ``ee_pose`` (14,) float32: per arm the TCP position + quaternion wxyz, world frame (what the
   robot's forward kinematics reports; names ``sim.core.EE_POSE_NAMES``, as the datasets record it).
 * ``cell`` (7,) float32: the cell's calibration, constant per scene: table top height, depth, width,
@@ -127,6 +131,8 @@ class FlatLabEnv(gym.Env):
         self.failure: FailureReason | None = None  # why the episode failed, once it has ended
         self.failure_detail = ""
         self._last_obs = None
+        self._cloud_seed = 0  # drawn per reset: the clouds of step k are sampled with (seed, k)
+        self._skip_clouds = False
 
     # ------------------------------------------------------------------ construction
     def _build(self, object_id: str, layout=None) -> None:
@@ -199,12 +205,25 @@ class FlatLabEnv(gym.Env):
         }
         if self.obs_pixels:
             obs["pixels"] = {c: rig.rgb(sim.data, c) for c in self.cameras}
-        if self.obs_pointcloud:
+        if self.obs_pointcloud and self._skip_clouds and self._last_obs is not None:
+            obs["pointcloud"] = self._last_obs["pointcloud"]
+            obs["object_pointcloud"] = self._last_obs["object_pointcloud"]
+        elif self.obs_pointcloud:
+            rng = np.random.default_rng((self._cloud_seed, self.steps))
             pts = crop(rig.scene_points(sim.data, self.pointcloud_cameras), *self.workspace)
-            obs["pointcloud"] = sample(pts, self.n_points, self.np_random)
+            obs["pointcloud"] = sample(pts, self.n_points, rng)
             opts = rig.object_points(sim.data, sim.obj_geoms, sim.flex_id, self.pointcloud_cameras)
-            obs["object_pointcloud"] = sample(opts, self.n_object_points, self.np_random)
+            obs["object_pointcloud"] = sample(opts, self.n_object_points, rng)
+        self._skip_clouds = False
         return obs
+
+    def skip_clouds(self) -> None:
+        """The next step's observation repeats the last ``pointcloud`` / ``object_pointcloud`` instead of
+        rendering new ones (one step only; a reset always renders).  For a caller that knows its policy
+        will not read them: the clouds of every later step are the same as without the skip (each step
+        samples with its own generator), so the episode is unchanged, only faster -- the four 128 px
+        depth + segmentation renders of the benchmark's clouds are ~45 ms of a step on 2 CPU cores."""
+        self._skip_clouds = True
 
 
     def _task_success(self) -> bool:
@@ -256,6 +275,8 @@ class FlatLabEnv(gym.Env):
         self._task_done = False
         self.steps = 0
         self.failure, self.failure_detail = None, ""
+        self._cloud_seed = int(rng.integers(2**63))  # after the placement's draws: placements stay as they were
+        self._skip_clouds = False
         obs = self._observe()
         self._last_obs = obs
         info = self._info()

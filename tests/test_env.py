@@ -52,6 +52,39 @@ def test_seeded_reset_is_deterministic(env):
     assert abs(x) <= 0.05 and abs(y) <= 0.05 and abs(yaw) <= np.deg2rad(30)
 
 
+def test_skipped_clouds_repeat_the_last_and_change_no_later_step(monkeypatch):
+    """``skip_clouds``: the next step renders no cloud and repeats the last ones; every later step's clouds
+    (and everything else) are those of an env that rendered at every step -- each step samples its clouds
+    with its own generator -- so ``flatlab eval`` may skip them where the policy will not read them."""
+    from flatlab_lerobot.sim.cameras import CameraRig
+
+    def run(skip_at: set[int]) -> tuple[list[dict], int]:
+        e = FlatLabEnv(object_id="ref_box", obs_pixels=False, image_size=32, n_points=128, n_object_points=32,
+                       episode_length=6)  # fmt: skip
+        renders = []
+        real = CameraRig.scene_points
+        monkeypatch.setattr(CameraRig, "scene_points", lambda self, *a, **k: renders.append(1) or real(self, *a, **k))
+        obs = [e.reset(seed=3)[0]]
+        a = obs[0]["agent_pos"].copy()
+        a[2] += 0.3  # the arm moves: every step's cloud differs
+        for t in range(5):
+            if t in skip_at:
+                e.skip_clouds()
+            obs.append(e.step(a)[0])
+        e.close()
+        return obs, len(renders)
+
+    every, n_every = run(set())
+    skipped, n_skipped = run({1, 2})
+    assert n_every == 6 and n_skipped == 4
+    for t, (o1, o2) in enumerate(zip(every, skipped)):
+        for k in ("agent_pos", "environment_state", "pointcloud", "object_pointcloud"):
+            if k.endswith("pointcloud") and t in (2, 3):  # stepped after a skip: the clouds of step 1
+                assert np.array_equal(o2[k], every[1][k]) and not np.array_equal(o2[k], o1[k]), (t, k)
+            else:
+                assert np.array_equal(o1[k], o2[k]), (t, k)
+
+
 def test_divergence_ends_episode_as_failure(env, monkeypatch):
     obs, _ = env.reset(seed=0)
 

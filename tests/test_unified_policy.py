@@ -881,6 +881,35 @@ def test_flatlab_eval_fills_column_s(tiny, tmp_path):
     assert rec["strategy"] in ("A", "B", "C") and rec["S"] == (rec["strategy"] == "B") and rec["steps"] == 20
 
 
+@pytest.mark.slow
+def test_flatlab_eval_skips_the_clouds_the_policy_will_not_read_and_runs_the_same_episode(tiny, tmp_path, monkeypatch):
+    """``flatlab eval`` lets the env skip the clouds of steps where ``reads_next_clouds`` is False (inside a stage);
+    the episode -- every action, the stage decisions, the record -- is the one run with clouds rendered at every
+    step (``--render-every-step``, as lerobot-eval's loop), with far fewer renders."""
+    from flatlab_lerobot.evaluation.protocol import main as eval_main
+
+    seen = {}
+
+    def run(tag: str, *flags: str):
+        actions, renders = [], []
+        real_step, real_obs = FlatLabEnv.step, FlatLabEnv._observe
+        monkeypatch.setattr(FlatLabEnv, "step", lambda self, a: actions.append(np.array(a)) or real_step(self, a))
+        monkeypatch.setattr(FlatLabEnv, "_observe", lambda self: renders.append(not self._skip_clouds) or real_obs(self))
+        out = tmp_path / tag
+        assert eval_main(["--policy", str(tiny["artifact"]), "--objects", OBJECT, "--trials", "1", "--workers", "1",
+                          "--quiet", "--no-plot", "--out", str(out), *ENV_FLAGS, "--env.episode_length=80",
+                          "--policy.strategy=B", *flags]) == 0  # fmt: skip
+        (rec,) = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+        seen[tag] = (np.array(actions), sum(renders), {k: v for k, v in rec.items() if k not in ("wall_s", "pid")})
+
+    run("every", "--render-every-step")
+    run("skip")
+    (a_every, n_every, rec_every), (a_skip, n_skip, rec_skip) = seen["every"], seen["skip"]
+    assert rec_skip == rec_every and rec_every["steps"] == 80
+    np.testing.assert_array_equal(a_skip, a_every)
+    assert n_every == 81 and n_skip < n_every / 4, (n_every, n_skip)  # the reset + one per step; a few decisions
+
+
 # ------------------------------------------------------------------------------ Train objects only
 def _fake_dataset(root: Path, tasks: list[str], frames: pd.DataFrame | None = None, export: dict | None = None):
     (root / "meta").mkdir(parents=True)

@@ -205,6 +205,9 @@ class Evaluator:
         envs = make_env(env_cfg, n_envs=1, use_async_envs=False)
         vec = envs[env_cfg.type][0]
         amp = torch.autocast(device_type=self.device.type) if self.cfg.use_amp else nullcontext()
+        env_post = self.env_post
+        if hasattr(self.policy, "reads_next_clouds") and not self.spec.get("render_every_step"):
+            env_post = _SkipUnreadClouds(self.env_post, vec.envs[0].unwrapped, self.policy)
         try:
             for t in trials:
                 if self.spec.get("parent_pid") and not _alive(self.spec["parent_pid"]):
@@ -213,7 +216,7 @@ class Evaluator:
                 t0 = time.perf_counter()
                 with torch.no_grad(), amp:
                     info = lerobot_eval.eval_policy(
-                        env=vec, policy=self.policy, env_preprocessor=self.env_pre, env_postprocessor=self.env_post,
+                        env=vec, policy=self.policy, env_preprocessor=self.env_pre, env_postprocessor=env_post,
                         preprocessor=self.pre, postprocessor=self.post, n_episodes=1, start_seed=seed,
                     )  # fmt: skip
                 ep = info["per_episode"][0]
@@ -251,6 +254,24 @@ class Evaluator:
                 yield record
         finally:
             close_envs(envs)
+
+
+class _SkipUnreadClouds:
+    """lerobot's env postprocessor (it runs between the policy's ``select_action`` and ``env.step``), then: when
+    the policy says its next step will not read the clouds (``policy.reads_next_clouds``, e.g.
+    ``flatlab_unified`` between two stage decisions), the env skips rendering them for that step
+    (``FlatLabEnv.skip_clouds``).  Each step's clouds are sampled with their own generator, so the episode is
+    the one lerobot-eval runs, rendering at every step (tests/test_protocol.py checks it); ~40 % of a learned
+    trial's wall time on 2 cores is these renders."""
+
+    def __init__(self, env_post, env, policy):
+        self.env_post, self.env, self.policy = env_post, env, policy
+
+    def __call__(self, transition):
+        out = self.env_post(transition)
+        if not self.policy.reads_next_clouds:
+            self.env.skip_clouds()
+        return out
 
 
 def desk_outcome(env, policy) -> dict:
@@ -524,6 +545,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="torch CPU threads per worker (default: torch's own, as in lerobot-eval; 1 avoids oversubscribing "
         "2 cores with 2 workers but may change a learned policy's float rounding)",
     )
+    ap.add_argument("--render-every-step", action="store_true",
+                    help="render the clouds at every step, also where the policy says it will not read them "
+                    "(policy.reads_next_clouds; the episodes are the same, only slower: for checking that)")  # fmt: skip
     ap.add_argument("--device", default=None, help="policy device (shortcut for --policy.device=...)")
     ap.add_argument("--rename-map", default="{}", help="JSON observation rename map, as lerobot-eval's --rename_map")
     ap.add_argument(
@@ -597,7 +621,7 @@ def main(argv=None) -> int:
     n_todo = sum(len(j["trials"]) for j in jobs)
     budget = n_todo if args.max_trials is None else min(n_todo, args.max_trials)
     spec = {"policy": policy, "builtin": builtin, "env_args": env_args, "policy_args": policy_args,
-            "rename_map": rename_map, "seed": args.seed}  # fmt: skip
+            "rename_map": rename_map, "seed": args.seed, "render_every_step": args.render_every_step}  # fmt: skip
     if budget > 0 and args.workers <= 1:
         trials = _run_in_process(spec, jobs)
     elif budget > 0:  # start the workers before any thread (tqdm's monitor) exists in this process

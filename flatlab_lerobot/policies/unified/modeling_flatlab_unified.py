@@ -134,6 +134,32 @@ def _rotmat(q) -> np.ndarray:
     return R.reshape(3, 3)
 
 
+_UNTAKEN = object()
+
+
+class _Lookahead:
+    """An iterator that can say whether it has a next item (by taking that item one call early)."""
+
+    def __init__(self, items):
+        self._it, self._next = iter(items), _UNTAKEN
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        if self._next is _UNTAKEN:
+            return next(self._it)
+        item, self._next = self._next, _UNTAKEN
+        if item is StopIteration:
+            raise StopIteration
+        return item
+
+    def has_next(self) -> bool:
+        if self._next is _UNTAKEN:
+            self._next = next(self._it, StopIteration)
+        return self._next is not StopIteration
+
+
 class _Episode:
     """One batch element's episode: the strategy, the stage being executed and the commanded joints.
     With ``clear_all`` an episode holds several attempts (one per object, or retries), one after another."""
@@ -206,7 +232,17 @@ class _Episode:
                 self.after = self._after_hold(obs, settle=False)
                 continue
             reach = REACH_TOL if self.policy.config.reach_check else None
-            self.actions = self.expert.runner.actions(self._primitive(obs), self.q, self.grip, reach_tol=reach)
+            self.actions = _Lookahead(self.expert.runner.actions(self._primitive(obs), self.q, self.grip,
+                                                                 reach_tol=reach))
+
+    def reads_next_clouds(self) -> bool:
+        """Whether the next :meth:`act` may read the clouds: False only while the current stage's actions
+        go on (the next one is already computed; a stage reads its observation when it is planned).
+        ``clear_all`` / ``retry_track`` / ``quick_retry`` follow or check the object cloud at every step."""
+        cfg = self.policy.config
+        if cfg.clear_all or cfg.retry_track or cfg.quick_retry or self.after is not None:
+            return True
+        return self.actions is None or not self.actions.has_next()
 
     def _emit(self, steps) -> bool:
         """Take the next (stage, action) of ``steps`` as the last action; False when it is exhausted."""
@@ -497,6 +533,14 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
     def stage_indices(self) -> list[int]:
         """Per batch element, the stage index in ``strategies.STRATEGIES[strategy]`` (-1: not started)."""
         return [e.index for e in self._episodes or []]
+
+    @property
+    def reads_next_clouds(self) -> bool:
+        """Whether the next :meth:`select_action` may read ``observation.pointcloud`` / ``object_pointcloud``
+        (True before the first step).  ``flatlab eval`` lets the env skip rendering them when it will not
+        (``FlatLabEnv.skip_clouds``): the episode is the same, the stage's steps between its decisions
+        render nothing."""
+        return self._episodes is None or any(e.reads_next_clouds() for e in self._episodes)
 
     @property
     def attempts(self) -> list[list[str]]:
