@@ -325,6 +325,38 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
         assert all(e["heights"][a] == want[e["index"]] for e in logged for a in e["arms"]), logged
 
 
+@pytest.mark.parametrize("repeat", [False, True])
+def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, monkeypatch, repeat):
+    """continue_press_repeat: A's press of a later push pass ends no higher than the same arm's first press (the
+    commanded end, world z); the amount it was lowered is logged.  Without it the learned height stands."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed = _posed_stages(monkeypatch)
+    monkeypatch.setattr(M, "pass_needed", lambda missing: True)  # the untrained executor's push: every pass runs
+    pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_press_repeat=str(repeat).lower())
+    env = _env()
+    obs, _ = env.reset(seed=0)
+    pol.reset()
+    for _ in range(250):
+        obs, _, term, trunc, _ = env.step(pol.select_action(_batch(obs))[0].numpy())
+        if term or trunc or pol.stage_indices[0] > 5:
+            break
+    env.close()
+    presses = [(log["index"], arm, float(prim.motions[arm].end[0][2]), log["heights"][arm])
+               for prim, log, _ in posed if prim.name == "press" for arm in prim.motions]  # fmt: skip
+    first = {arm: z for index, arm, z, _ in presses if index < 4}
+    later = [(arm, z, h) for index, arm, z, h in presses if index >= 4 and arm in first]
+    assert first and later, presses
+    for arm, z, h in later:
+        if repeat:
+            assert z <= first[arm] + 1e-9 and ("repeat" in h) == (z == pytest.approx(first[arm])), (z, first, h)
+        else:
+            assert "repeat" not in h
+    assert any("repeat" in h for _, _, h in later) is repeat  # this executor's later press is learned higher
+    with pytest.raises(ValueError, match="continue_press_repeat=true needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_press_repeat=True)
+
+
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     """The executor is called once per stage, with the scene and object clouds observed when the stage
     starts, (strategy, stage index, the stage's primitive name) and the TCP poses of the observed

@@ -160,6 +160,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with continue_from_hand: a press continued from the hand ends this much (m) lower than learned, so the
     # hand presses into a thin object instead of resting a few mm above it (>= 0)
     continue_press_deeper: float = 0.0
+    # with continue_from_hand (A): a later push pass's continued press ends no higher than the arm's press of
+    # the first pass ended (commanded, world z): the object's thickness and the table do not change between
+    # passes, and the first pass's press is the one that pushed it (reads no cloud: the policy's own commands)
+    continue_press_repeat: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -218,6 +222,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if self.continue_from_hand and self.contact != "learned":
             raise ValueError(f"--policy.continue_from_hand={self.continue_from_hand} needs --policy.contact=learned "
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")
+        if self.continue_press_repeat and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_press_repeat=true needs A in --policy.continue_from_hand (e.g. AC)")
         if (self.continue_level_slide or self.continue_press_deeper) and not self.continue_from_hand:
             raise ValueError("--policy.continue_level_slide / --policy.continue_press_deeper need "
                              "--policy.continue_from_hand (the stages they change start at the hand)")

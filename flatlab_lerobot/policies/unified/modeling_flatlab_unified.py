@@ -186,6 +186,7 @@ class _Episode:
         self.track_at: np.ndarray | None = None  # retry_track: the object cloud's seen centre (x, y) at the last step
         self.track_jumped = False  # retry_track: it jumped (the env shows another object) since the attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
+        self.first_press_z: dict[str, float] = {}  # continue_press_repeat: per arm, where A's first press ended (z)
 
     def act(self, obs: Observed) -> np.ndarray:
         self.obs = obs
@@ -352,7 +353,7 @@ class _Episode:
         self.q = np.r_[self.last[0:7], self.last[8:15]].copy()
         self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
         self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
-        self.a_pusher = None
+        self.a_pusher, self.first_press_z = None, {}
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
@@ -433,6 +434,8 @@ class _Episode:
                 deeper = cfg.continue_press_deeper if spec.primitive == "press" else 0.0
                 (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a], level=level, deeper=deeper)
                 heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}
+                if cfg.continue_press_repeat and self.strategy == "A" and spec.primitive == "press":
+                    self._repeat_press(a, p1, heights[a])
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
@@ -446,6 +449,17 @@ class _Episode:
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
                          "duration": duration, **({"heights": heights} if observed or continued else {}), **arm_log})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _repeat_press(self, arm: str, p1: np.ndarray, log: dict) -> None:
+        """``continue_press_repeat``: A's first press of ``arm`` is remembered; a later pass's press (``p1``, changed
+        in place) ends no higher than it.  Traces of Train trials (stop 50, ``disk_cork_coaster``): the learned
+        press of the second pass ended 1.5 cm above the first's, the hand slid over the coaster, which stayed
+        3.5 cm short of the overhang the grasp needs."""
+        if self.index < PASS_STAGES:
+            self.first_press_z[arm] = float(p1[2])
+        elif arm in self.first_press_z and p1[2] > self.first_press_z[arm]:
+            log["repeat"] = round(float(p1[2]) - self.first_press_z[arm], 4)  # how much lower than learned
+            p1[2] = self.first_press_z[arm]
 
     def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
         """``contact_a_backoff`` at A's pre-approach: the arm off the seen side (the pusher) backs off from
