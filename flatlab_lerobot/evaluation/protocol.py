@@ -261,8 +261,8 @@ class _SkipUnreadClouds:
     the policy says its next step will not read the clouds (``policy.reads_next_clouds``, e.g.
     ``flatlab_unified`` between two stage decisions), the env skips rendering them for that step
     (``FlatLabEnv.skip_clouds``).  Each step's clouds are sampled with their own generator, so the episode is
-    the one lerobot-eval runs, rendering at every step (tests/test_protocol.py checks it); ~40 % of a learned
-    trial's wall time on 2 cores is these renders."""
+    the one lerobot-eval runs, rendering at every step (tests/test_unified_policy.py checks it); these renders
+    were about half of a learned rigid-object trial's wall time on 2 cores (docs/performance.md)."""
 
     def __init__(self, env_post, env, policy):
         self.env_post, self.env, self.policy = env_post, env, policy
