@@ -58,12 +58,14 @@ def test_skipped_clouds_repeat_the_last_and_change_no_later_step(monkeypatch):
     with its own generator -- so ``flatlab eval`` may skip them where the policy will not read them."""
     from flatlab_lerobot.sim.cameras import CameraRig
 
+    renders = []  # the current run's scene-cloud renders
+    real = CameraRig.scene_points
+    monkeypatch.setattr(CameraRig, "scene_points", lambda self, *a, **k: renders.append(1) or real(self, *a, **k))
+
     def run(skip_at: set[int]) -> tuple[list[dict], int]:
         e = FlatLabEnv(object_id="ref_box", obs_pixels=False, image_size=32, n_points=128, n_object_points=32,
                        episode_length=6)  # fmt: skip
-        renders = []
-        real = CameraRig.scene_points
-        monkeypatch.setattr(CameraRig, "scene_points", lambda self, *a, **k: renders.append(1) or real(self, *a, **k))
+        renders.clear()
         obs = [e.reset(seed=3)[0]]
         a = obs[0]["agent_pos"].copy()
         a[2] += 0.3  # the arm moves: every step's cloud differs

@@ -916,17 +916,18 @@ def test_flatlab_eval_fills_column_s(tiny, tmp_path):
 @pytest.mark.slow
 def test_flatlab_eval_skips_the_clouds_the_policy_will_not_read_and_runs_the_same_episode(tiny, tmp_path, monkeypatch):
     """``flatlab eval`` lets the env skip the clouds of steps where ``reads_next_clouds`` is False (inside a stage);
-    the episode -- every action, the stage decisions, the record -- is the one run with clouds rendered at every
-    step (``--render-every-step``, as lerobot-eval's loop), with far fewer renders."""
+    the episode -- every action and the record -- is the one run with clouds rendered at every step
+    (``--render-every-step``, as lerobot-eval's loop), with far fewer renders."""
     from flatlab_lerobot.evaluation.protocol import main as eval_main
 
-    seen = {}
+    seen, actions, renders = {}, [], []  # the lists: the current run's, filled by the spies patched in once
+    real_step, real_obs = FlatLabEnv.step, FlatLabEnv._observe
+    monkeypatch.setattr(FlatLabEnv, "step", lambda self, a: actions.append(np.array(a)) or real_step(self, a))
+    monkeypatch.setattr(FlatLabEnv, "_observe", lambda self: renders.append(not self._skip_clouds) or real_obs(self))
 
     def run(tag: str, *flags: str):
-        actions, renders = [], []
-        real_step, real_obs = FlatLabEnv.step, FlatLabEnv._observe
-        monkeypatch.setattr(FlatLabEnv, "step", lambda self, a: actions.append(np.array(a)) or real_step(self, a))
-        monkeypatch.setattr(FlatLabEnv, "_observe", lambda self: renders.append(not self._skip_clouds) or real_obs(self))
+        actions.clear()
+        renders.clear()
         out = tmp_path / tag
         assert eval_main(["--policy", str(tiny["artifact"]), "--objects", OBJECT, "--trials", "1", "--workers", "1",
                           "--quiet", "--no-plot", "--out", str(out), *ENV_FLAGS, "--env.episode_length=80",
