@@ -357,6 +357,50 @@ def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, m
         FlatLabUnifiedConfig(continue_from_hand="C", continue_press_repeat=True)
 
 
+@pytest.mark.parametrize("cap", [False, True])
+def test_continue_slide_cap_stops_a_slide_at_the_seen_missing_overhang(tiny, monkeypatch, cap):
+    """continue_slide_cap: A's slide continued from the hand advances along +x no further than the expert's
+    slide_distance for the overhang still missing on the object cloud it was posed from (logged: how much shorter
+    than learned).  The tiny untrained executor's slide is made to run 60 cm along +x, past any cap; without the
+    switch that learned slide stands."""
+    from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+    from flatlab_lerobot.policies.unified.observed_contact import slide_cap
+
+    posed, caps, real = _posed_stages(monkeypatch), [], FlatLabExecutorPolicy.predict_poses
+
+    def long_slide(self, *args, **kwargs):
+        out = real(self, *args, **kwargs)
+        if args[3] == "slide":
+            for pose in out.values():
+                pose["end"] = (pose["start"][0] + np.array([0.6, 0.0, 0.0], np.float32), pose["end"][1])
+        return out
+
+    monkeypatch.setattr(FlatLabExecutorPolicy, "predict_poses", long_slide)
+    monkeypatch.setattr(M, "slide_cap", lambda pts, edge_x: caps.append(slide_cap(pts, edge_x)) or caps[-1])
+    pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_slide_cap=str(cap).lower())
+    env = _env()
+    obs, _ = env.reset(seed=0)
+    pol.reset()
+    for _ in range(120):
+        obs, _, term, trunc, _ = env.step(pol.select_action(_batch(obs))[0].numpy())
+        if term or trunc or pol.stage_indices[0] > 2:
+            break
+    env.close()
+    slides = [(prim.motions[arm], log["heights"][arm]) for prim, log, _ in posed if prim.name == "slide"
+              for arm in prim.motions]  # fmt: skip
+    assert slides and len(caps) == (len(slides) if cap else 0), (slides, caps)
+    for (motion, h), c in zip(slides, caps if cap else [None] * len(slides)):
+        advance = float(motion.end[0][0] - motion.start[0][0])
+        if cap:
+            assert c is not None and 0.0 <= advance <= c + 1e-6 < 0.6, (advance, c, h)
+            assert h["cap"] == pytest.approx(0.6 - advance, abs=1e-4), h
+        else:
+            assert advance == pytest.approx(0.6, abs=1e-4) and "cap" not in h, (advance, h)
+    with pytest.raises(ValueError, match="continue_slide_cap=true needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_slide_cap=True)
+
+
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):
     """The executor is called once per stage, with the scene and object clouds observed when the stage
     starts, (strategy, stage index, the stage's primitive name) and the TCP poses of the observed

@@ -164,6 +164,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the first pass ended (commanded, world z): the object's thickness and the table do not change between
     # passes, and the first pass's press is the one that pushed it (reads no cloud: the policy's own commands)
     continue_press_repeat: bool = False
+    # with continue_from_hand (A): a slide continued from the hand advances along +x at most the expert's
+    # ``slide_distance`` for the overhang still missing, measured on the object cloud seen as the slide is planned
+    # (the rule that already decides another push pass; contact=observed caps its slide the same way): a slide
+    # that ran longer once the press held the object pushed it off the table (reads the object cloud and cell)
+    continue_slide_cap: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -224,6 +229,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")
         if self.continue_press_repeat and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_press_repeat=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_slide_cap and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
         if (self.continue_level_slide or self.continue_press_deeper) and not self.continue_from_hand:
             raise ValueError("--policy.continue_level_slide / --policy.continue_press_deeper need "
                              "--policy.continue_from_hand (the stages they change start at the hand)")

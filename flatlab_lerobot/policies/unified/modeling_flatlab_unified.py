@@ -60,11 +60,13 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     a_side_arms,
     b_aligned,
     b_centred,
+    cap_slide,
     continued_motion,
     mirror_pose,
     object_footprint_x,
     observed_motion,
     seen_centre,
+    slide_cap,
     turned_from_hand,
 )
 from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
@@ -436,6 +438,12 @@ class _Episode:
                 heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}
                 if cfg.continue_press_repeat and self.strategy == "A" and spec.primitive == "press":
                     self._repeat_press(a, p1, heights[a])
+                if cfg.continue_slide_cap and self.strategy == "A" and spec.primitive == "slide":
+                    cap = slide_cap(obs.object_points, obs.edge_x)
+                    capped = cap_slide(p0, p1, cap)
+                    if not np.allclose(capped, p1):
+                        heights[a]["cap"] = round(float(p1[0] - capped[0]), 4)  # how much shorter than learned
+                    p1 = capped
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
