@@ -136,6 +136,23 @@ def _rollout(policies, steps: int, object_id=OBJECT, seed=0, batch_fns=None):
     return np.array(out)
 
 
+def _run_until_stage(pol, last: int, steps: int) -> list[tuple[int, str | None]]:
+    """One env episode (the default object, seed 0) driven by ``pol`` until its stage index passes ``last``, the
+    episode ends or ``steps`` steps ran.  Returns (stage index, stage) after each step's action."""
+    env = _env()
+    obs, _ = env.reset(seed=0)
+    pol.reset()
+    seq = []
+    for _ in range(steps):
+        action = pol.select_action(_batch(obs))[0].numpy()
+        seq.append((pol.stage_indices[0], pol.stages[0]))
+        obs, _, term, trunc, _ = env.step(action)
+        if term or trunc or pol.stage_indices[0] > last:
+            break
+    env.close()
+    return seq
+
+
 def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
     a = _load(tiny["artifact"])
     a.save_pretrained(tmp_path / "again")
@@ -301,17 +318,7 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
         pol, from_hand = _load(tiny["artifact"], strategy="A", continue_from_hand="BC"), False
     else:
         pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_from_hand=str(from_hand).lower())
-    env = _env()
-    obs, _ = env.reset(seed=0)
-    pol.reset()
-    seq = []
-    for _ in range(200):
-        action = pol.select_action(_batch(obs))[0].numpy()
-        seq.append((pol.stage_indices[0], pol.stages[0]))
-        obs, _, term, trunc, _ = env.step(action)
-        if term or trunc or pol.stage_indices[0] > 3:
-            break
-    env.close()
+    seq = _run_until_stage(pol, 3, 200)
     during = [stage for index, stage in seq if 1 <= index <= 3]  # press, slide, release of the first pass
     assert {"press", "slide", "release"} <= set(during), seq
     assert ("move" in during) is (not from_hand), during
@@ -334,14 +341,7 @@ def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, m
     posed = _posed_stages(monkeypatch)
     monkeypatch.setattr(M, "pass_needed", lambda missing: True)  # the untrained executor's push: every pass runs
     pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_press_repeat=str(repeat).lower())
-    env = _env()
-    obs, _ = env.reset(seed=0)
-    pol.reset()
-    for _ in range(250):
-        obs, _, term, trunc, _ = env.step(pol.select_action(_batch(obs))[0].numpy())
-        if term or trunc or pol.stage_indices[0] > 5:
-            break
-    env.close()
+    _run_until_stage(pol, 5, 250)
     presses = [(log["index"], arm, float(prim.motions[arm].end[0][2]), log["heights"][arm])
                for prim, log, _ in posed if prim.name == "press" for arm in prim.motions]  # fmt: skip
     first = {arm: z for index, arm, z, _ in presses if index < 4}
@@ -379,14 +379,7 @@ def test_continue_slide_cap_stops_a_slide_at_the_seen_missing_overhang(tiny, mon
     monkeypatch.setattr(FlatLabExecutorPolicy, "predict_poses", long_slide)
     monkeypatch.setattr(M, "slide_cap", lambda pts, edge_x: caps.append(slide_cap(pts, edge_x)) or caps[-1])
     pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_slide_cap=str(cap).lower())
-    env = _env()
-    obs, _ = env.reset(seed=0)
-    pol.reset()
-    for _ in range(120):
-        obs, _, term, trunc, _ = env.step(pol.select_action(_batch(obs))[0].numpy())
-        if term or trunc or pol.stage_indices[0] > 2:
-            break
-    env.close()
+    _run_until_stage(pol, 2, 120)
     slides = [(prim.motions[arm], log["heights"][arm]) for prim, log, _ in posed if prim.name == "slide"
               for arm in prim.motions]  # fmt: skip
     assert slides and len(caps) == (len(slides) if cap else 0), (slides, caps)
