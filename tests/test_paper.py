@@ -58,11 +58,17 @@ def test_sweeps_are_generated_from_one_list_and_reuse_existing_runs():
 
 def test_a_stage_names_a_shared_flag_list_and_a_self_reference_fails():
     ctx = ctx_for("cpu")
-    shared = ctx.preset["vars"]["desk_twelve_switches"]  # args: ["${desk_twelve_switches}"], spliced in
+    v12_extra = ["--policy.retry_track=true", "--policy.reach_check=true"]
+    # args: ["${desk_twelve_switches}"], spliced in, with its own "${desk_switches}" (shared with the one-build desk)
+    shared = P._subst(["${desk_twelve_switches}"], ctx.preset["vars"], "here")
+    assert ctx.preset["vars"]["desk_twelve_switches"][-1] == "${desk_switches}"
+    assert shared[1:] == ctx.preset["vars"]["desk_switches"]
+    one = ctx.stages["eval_desk_flatlab_contact_one_rot15"].cmd
+    assert one[-len(shared) - 1 : -2] == shared[1:] and one[-2:] == v12_extra
     v11 = ctx.stages["eval_desk_flatlab_contact_v11h_rot15"].cmd
     v12 = ctx.stages["eval_desk_flatlab_contact_v12h_rot15"].cmd
     assert v11[-len(shared) :] == shared
-    assert v12[: len(v11)] == v11 and v12[len(v11) :] == ["--policy.retry_track=true", "--policy.reach_check=true"]
+    assert v12[: len(v11)] == v11 and v12[len(v11) :] == v12_extra
     env = {"a": ["x", "${b}"], "b": ["${a}"]}
     with pytest.raises(P.PaperError, match=r"\$\{a\} refers to itself \(through a -> b\)"):
         P._subst(["${a}"], env, "here")
