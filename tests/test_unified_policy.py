@@ -280,6 +280,31 @@ def test_contact_b_align_turns_the_touch_onto_the_seen_side(tiny, monkeypatch, a
             assert along < 1.0 - 1e-6 and "b_align_deg" not in log["heights"][arm]
 
 
+B_RULES = {"contact": "observed", "contact_from_hand": "true", "contact_b_face": "true", "contact_b_steady": "true",
+           "contact_b_align": "true", "contact_b_centred": "true"}
+
+
+def test_contact_strategies_leaves_b_to_the_executor(tiny):
+    """With contact_strategies=AC, B's stages are posed as with contact=learned (every action the same, no stage
+    posed by a rule) although every B rule is switched on; with the default ABC the same rules change B's actions.
+    A's stages are still posed by the rules (the touch's heights from the object cloud)."""
+    learned = _load(tiny["artifact"], strategy="B")
+    ac = _load(tiny["artifact"], strategy="B", contact_strategies="AC", **B_RULES)
+    abc = _load(tiny["artifact"], strategy="B", **B_RULES)
+    acts = _rollout([learned, ac, abc], steps=60)
+    np.testing.assert_array_equal(acts[0], acts[1])
+    assert not any("heights" in d for d in ac.decisions[0]) and ac.stage_indices[0] >= 2
+    assert np.abs(acts[0] - acts[2]).max() > 1e-3  # the rules move B's hands
+    a = _load(tiny["artifact"], strategy="A", contact_strategies="AC", contact="observed")
+    _rollout([a], steps=30)
+    touch = [d for d in a.decisions[0] if d.get("primitive") == "touch"]
+    assert touch and all(h["observed"][1] is not None for h in touch[0]["heights"].values())
+    with pytest.raises(ValueError, match="contact_strategies=AC needs --policy.contact=observed"):
+        FlatLabUnifiedConfig(contact_strategies="AC")
+    with pytest.raises(ValueError, match="--policy.contact_strategies: distinct letters"):
+        FlatLabUnifiedConfig(contact="observed", contact_strategies="AA")
+
+
 @pytest.mark.parametrize("closed", [False, True])
 def test_contact_grip_closed_keeps_the_pinch_closed_through_the_lift(tiny, monkeypatch, closed):
     """With contact_grip_closed, C's pinching hand closes to 0 in the grasp and its lift holds 0, as the expert's;

@@ -145,6 +145,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
     # paper; observed_contact.py)
     contact: str = "learned"
+    # with contact=observed: the strategies whose stages the rules pose (their contact_* switches act); a strategy
+    # left out runs as contact=learned does, every pose as the executor predicts it.  The B rules were chosen in
+    # stops 38-42 on an executor that no longer poses B; on Train, unified_cpu_one_rot15's learned B lifts the
+    # B-labelled objects 79 of 80 times, its B with the observed rules 71 (the keyboards 6 of 15; stop 52)
+    contact_strategies: str = "ABC"
     # with contact=learned, for the strategies whose letters it holds (e.g. AC; empty: off): every stage that
     # the expert starts where the hand is (StageSpec.start == "current": A's press, slide, release, grasp, lift; B's
     # squeeze, lift; C's squeeze, release, moves, grasp, lift) starts at the commanded hand (the policy's own
@@ -221,6 +226,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                      "contact_a_touch", "contact_a_pusher_side", "contact_b_centred"):
             if getattr(self, flag) and self.contact != "observed":
                 raise ValueError(f"--policy.{flag}=true needs --policy.contact=observed, got {self.contact!r}")
+        if not self.contact_strategies or not distinct_strategies(self.contact_strategies):
+            raise ValueError(f"--policy.contact_strategies: distinct letters of {''.join(STRATEGY_CHOICES[1:])} "
+                             f"(e.g. AC), got {self.contact_strategies!r}")
+        if set(self.contact_strategies) != set("ABC") and self.contact != "observed":
+            raise ValueError(f"--policy.contact_strategies={self.contact_strategies} needs --policy.contact=observed, "
+                             f"got {self.contact!r}")
         if not distinct_strategies(self.continue_from_hand):
             raise ValueError(f"--policy.continue_from_hand: distinct letters of {''.join(STRATEGY_CHOICES[1:])} "
                              f"(e.g. AC; empty: off), got {self.continue_from_hand!r}")

@@ -386,7 +386,8 @@ class _Episode:
         prob = {a: float(poses[a]["active"][0]) for a in ARMS}
         arms = [a for a in ARMS if prob[a] > thr] or [max(ARMS, key=prob.get)]
         motions, duration, heights = {}, 0.0, {}
-        observed = self.policy.config.contact == "observed"
+        # the observed rules pose this strategy's stages (contact=observed, the strategy in contact_strategies)
+        observed = self.policy.config.contact == "observed" and self.strategy in self.policy.config.contact_strategies
         a_grasp = observed and self.policy.config.contact_a_grasp
         source, y_centre, arm_log = None, None, {}  # contact_a_grasp: the learned arm mirrored onto the rule's arm
         if a_grasp and self.strategy == "A" and self.index >= A_PREAPPROACH:  # A's pre-approach and after
@@ -445,7 +446,7 @@ class _Episode:
                         heights[a]["cap"] = round(float(p1[0] - capped[0]), 4)  # how much shorter than learned
                     p1 = capped
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
-            if (self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
+            if (observed and self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
                 g0, g1 = (g0 if spec.primitive == "grasp" else 0.0), 0.0
                 heights[a]["closed"] = True
