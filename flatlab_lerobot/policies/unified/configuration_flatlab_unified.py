@@ -229,7 +229,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if not self.contact_strategies or not distinct_strategies(self.contact_strategies):
             raise ValueError(f"--policy.contact_strategies: distinct letters of {''.join(STRATEGY_CHOICES[1:])} "
                              f"(e.g. AC), got {self.contact_strategies!r}")
-        if set(self.contact_strategies) != set("ABC") and self.contact != "observed":
+        if set(self.contact_strategies) != set(STRATEGY_CHOICES[1:]) and self.contact != "observed":
             raise ValueError(f"--policy.contact_strategies={self.contact_strategies} needs --policy.contact=observed, "
                              f"got {self.contact!r}")
         if not distinct_strategies(self.continue_from_hand):
