@@ -241,6 +241,20 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     for key in ("per_split", "per_category", "per_object", "selection"):
         assert after[key] == before[key], key
     assert R.tables(P.context("tiny", out, res)) == first
+    # an interrupted evaluation resumes after its saved trials (a half-written last line dropped), gives the same
+    # numbers, and its record and the runs table say that its wall time is the resumed part's
+    rec_path, jsonl = res / "tiny" / "eval_oracle.json", ctx.out("eval_oracle") / "results.jsonl"
+    whole, lines = json.loads(rec_path.read_text()), jsonl.read_text().splitlines(keepends=True)
+    assert len(lines) == 2
+    jsonl.write_text(lines[0] + lines[1][:20])
+    rec_path.unlink()
+    assert paper_main([*args, "--only", "eval_oracle", "--no-render"]) == 0
+    resumed = json.loads(rec_path.read_text())
+    assert resumed["paper_stage"]["resumed"] == {"trials_before": 1, "trials_this_run": 1}
+    assert resumed["per_object"] == whole["per_object"] and resumed["per_split"] == whole["per_split"]
+    ctx = P.context("tiny", out, res)
+    row = next(line for line in R.runs_table(ctx, P.statuses(ctx)).splitlines() if line.startswith("| `eval_oracle` |"))
+    assert "(resumed: 1 of 2 trials)" in row
 
 
 def test_git_commit_of_a_tree_copy_comes_from_the_environment(monkeypatch):

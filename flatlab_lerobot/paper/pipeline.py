@@ -436,6 +436,14 @@ def _resume_train(ctx: Context, st: Stage, cmd: list[str]) -> list[str]:
     return cmd
 
 
+def _trials_saved(out: Path) -> int:
+    """Complete trial lines an evaluation's ``results.jsonl`` holds (``flatlab eval`` resumes after them)."""
+    path = out / "results.jsonl"
+    if not path.is_file():
+        return 0
+    return sum(1 for line in path.read_text().splitlines() if line.strip().endswith("}"))
+
+
 def _output_summary(out: Path, log: Path) -> dict:
     """What a non-metrics stage made: its output's size and, for a training, the last logged loss and step."""
     files = [p for p in out.rglob("*") if p.is_file()] if out.is_dir() else []
@@ -485,6 +493,7 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
     log = ctx.log_path(st.name)
     log.parent.mkdir(parents=True, exist_ok=True)
     created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    before = _trials_saved(out) if st.kind == "eval" else 0  # an interrupted run's trials: this run resumes after them
     t0 = time.perf_counter()
     with open(log, "w") as f:
         f.write(f"$ {shlex.join(cmd)}\n")
@@ -507,6 +516,8 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
         "git": git_commit(), "wall_s": wall, "machine": machine(), "device": device(), "created": created,
         "output": f"$OUT/{st.name}",
     }  # fmt: skip
+    if before:  # wall_s covers this run's trials only
+        rec["paper_stage"]["resumed"] = {"trials_before": before, "trials_this_run": _trials_saved(out) - before}
     path = ctx.record_path(st.name)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".partial_{path.name}")

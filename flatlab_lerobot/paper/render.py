@@ -32,11 +32,10 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
-            "FlatLab, observed contact": "FlatLab, contacts from the observed cloud: heights, A's slide, C's squeeze and pinch, "
-                                         "A's and B's continuing stages from the hand, B's touch at the seen face, "
-                                         "A's grasp on the seen side's arm, its pusher backed off, a seen sheet lifted its "
-                                         "length + 8 cm, B's hands steady and along the seen side, the pinch kept closed "
-                                         "(not in the paper)"}  # fmt: skip
+            "FlatLab, observed contact": "FlatLab, A's and C's contacts from the observed cloud: heights, A's slide, C's squeeze "
+                                         "and pinch, A's continuing stages from the hand, A's grasp on the seen side's arm, "
+                                         "its pusher backed off, a seen sheet lifted its length + 8 cm, the pinch kept closed; "
+                                         "B posed by the executor (not in the paper)"}  # fmt: skip
 ABLATIONS = ["A-1", "A-2", "A-3", "A-4", "A-5", "A-6", "A-7", "A-8", "Full"]
 GENERATOR_ROWS = {"A-1", "A-2", "A-3", "A-7", "A-8", "Full"}  # the others share Full's generator
 EXECUTOR_ROWS = {"A-4", "A-5", "A-6", "Full"}  # the others share Full's executor
@@ -114,7 +113,7 @@ def provenance(rec: dict | None) -> dict:
         mach = m["machine"]
         return {"command": m["command"], "wall_s": m["wall_s"], "machine": f"{mach['cpu_count']} × {mach['cpu_model']}",
                 "device": m["device"], "commit": (m["git"].get("commit") or "")[:7], "created": m["created"],
-                "pipeline": True}  # fmt: skip
+                "pipeline": True, "resumed": m.get("resumed")}  # fmt: skip
     cmds = rec.get("commands") or ([rec["command"]] if isinstance(rec.get("command"), str) else [])
     if isinstance(rec.get("commands"), dict):
         cmds = list(rec["commands"].values())
@@ -445,7 +444,8 @@ def runs_table(ctx: Context, st: dict[str, Status]) -> str:
     """Wall time, machine, device and commit per stage; totals per kind and for the preset."""
     lines = ["## Runs: wall time per stage", "",
              "Measured records only; an earlier run's file gives one wall time for its whole chain (training + "
-             "evaluation; the executor's: training + metrics, its primitive sets counted once below). `$OUT` = "
+             "evaluation; the executor's: training + metrics, its primitive sets counted once below); an evaluation that "
+             "resumed an interrupted one gives the wall time of the trials it ran (marked resumed). `$OUT` = "
              f"`outputs/paper/{ctx.preset['name']}`, `$RESULTS` = `docs/results`.", "",
              "| stage | kind | status | wall (s) | machine | device | commit | created |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     totals: dict[str, float] = {}
@@ -466,7 +466,11 @@ def runs_table(ctx: Context, st: dict[str, Status]) -> str:
                 seen.add(k)
                 totals["learning-set"] = totals.get("learning-set", 0) + w
                 shared_note.append(f"`{name}`'s primitive sets: {w:.0f} s (counted once)")
-        lines.append(f"| `{name}` | {stage.kind} | {_state(s)} | {'–' if wall is None else f'{wall:.0f}'} | {p['machine']} | "
+        cell = "–" if wall is None else f"{wall:.0f}"
+        if wall is not None and p.get("resumed"):  # the run resumed an interrupted one: its wall is its own trials'
+            r = p["resumed"]
+            cell += f" (resumed: {r['trials_this_run']} of {r['trials_before'] + r['trials_this_run']} trials)"
+        lines.append(f"| `{name}` | {stage.kind} | {_state(s)} | {cell} | {p['machine']} | "
                      f"{p['device']} | {p['commit'] or '–'} | {p['created'] or '–'} |")  # fmt: skip
     n_left = sum(1 for n in ctx.stages if st[n].state in ("missing", "stale"))
     n_blocked = sum(1 for n in ctx.stages if st[n].state == "blocked")
