@@ -153,6 +153,9 @@ def test_tables_from_the_committed_results(tmp_path):
     ex = json.loads((RESULTS / "executor_cpu.json").read_text())["splits"]  # the cpu run (its legacy: the smoke run)
     assert f"| {ex['test_beta']['grasp']['p_mse_start_m2']:.4f} | 0.0040 |" in text
     assert "needs weights (lerobot/pi0)" in text
+    desk = text.split("## The five-object desk")[1]  # every desk stage has a table row, whatever its row label
+    desk_rows = "\n".join(line for line in desk.splitlines() if line.startswith("|"))
+    assert all(f"`{n}` |" in desk_rows for n, s in ctx.stages.items() if s.report.get("table") == "desk")
     # a stage without its record renders as not run (the committed results hold every cpu sweep point)
     shutil.copytree(RESULTS, tmp_path / "results")
     (tmp_path / "results" / "executor_lambda_pos_3.0.json").unlink()

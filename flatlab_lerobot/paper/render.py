@@ -405,9 +405,11 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
              "lifted (2-s hold) and none left on the table.", "",
              "| method | desks cleared | rate (%) | paper (%) | objects cleared per desk (of 5) | status | stage |",
              "|---|---|---|---|---|---|---|"]  # fmt: skip
+    shown = set()
     for label, paper_key in (("oracle", None), ("FlatLab", "FlatLab"), ("FlatLab, observed contact", None),
                              ("GPT-4o", "GPT-4o + same executor")):  # fmt: skip
         name = rows.get(label)
+        shown.add(name)
         s = st.get(name) if name else None
         k_n = desk(s.record) if _has(s) else None
         per = desk_objects(s.record) if _has(s) else None
@@ -420,8 +422,9 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
                      f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
-    # desk stages a newer one of the same row superseded (the preset's first wins): below, with their own text
-    earlier = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "desk" and n not in rows.values()]
+    # desk stages a newer one of the same row superseded (the preset's first wins), or of a row of their own: below,
+    # with their own text
+    earlier = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "desk" and n not in shown]
     for n in earlier:
         s, rep = st.get(n), ctx.stages[n].report
         k_n = desk(s.record) if _has(s) else None
