@@ -349,27 +349,37 @@ def _worker(spec: dict, jobs, results, threads: int | None) -> None:
 
 
 # ----------------------------------------------------------------------------- bookkeeping
-def load_done(path: Path, policy: str) -> dict[tuple[str, int], dict]:
-    """Finished trials in ``results.jsonl`` by (object_id, trial).  A half-written last line
-    (an interrupted write) is cut off the file so later appends start on a clean line."""
+def saved_trials(path: Path) -> dict[tuple[str, int], dict]:
+    """Finished trials in ``results.jsonl`` by (object_id, trial), read only: the lines ended by a newline
+    (a half-written last line is not one)."""
     done: dict[tuple[str, int], dict] = {}
     if not path.exists():
         return done
     raw = path.read_bytes()
-    good_end = raw.rfind(b"\n") + 1
-    if good_end < len(raw):
-        with open(path, "r+b") as f:
-            f.truncate(good_end)
-    for line in raw[:good_end].decode().splitlines():
+    for line in raw[: raw.rfind(b"\n") + 1].decode().splitlines():
         if not line.strip():
             continue
         try:
             rec = json.loads(line)
         except json.JSONDecodeError:
             continue
+        done[(rec["object_id"], int(rec["trial"]))] = rec
+    return done
+
+
+def load_done(path: Path, policy: str) -> dict[tuple[str, int], dict]:
+    """``saved_trials`` of a run about to resume: a half-written last line (an interrupted write) is cut off
+    the file so later appends start on a clean line, and every trial must be ``policy``'s."""
+    if path.exists():
+        raw = path.read_bytes()
+        good_end = raw.rfind(b"\n") + 1
+        if good_end < len(raw):
+            with open(path, "r+b") as f:
+                f.truncate(good_end)
+    done = saved_trials(path)
+    for rec in done.values():
         if rec.get("policy") != policy:
             raise EvalError(f"{path} holds results of policy {rec.get('policy')!r}, not {policy!r}: use another --out")
-        done[(rec["object_id"], int(rec["trial"]))] = rec
     return done
 
 

@@ -437,11 +437,10 @@ def _resume_train(ctx: Context, st: Stage, cmd: list[str]) -> list[str]:
 
 
 def _trials_saved(out: Path) -> int:
-    """Complete trial lines an evaluation's ``results.jsonl`` holds (``flatlab eval`` resumes after them)."""
-    path = out / "results.jsonl"
-    if not path.is_file():
-        return 0
-    return sum(1 for line in path.read_text().splitlines() if line.strip().endswith("}"))
+    """Finished trials an evaluation's ``results.jsonl`` holds, as ``flatlab eval`` counts them when it resumes."""
+    from flatlab_lerobot.evaluation.protocol import saved_trials  # the eval's own bookkeeping (lazy: heavy imports)
+
+    return len(saved_trials(out / "results.jsonl"))
 
 
 def _output_summary(out: Path, log: Path) -> dict:
