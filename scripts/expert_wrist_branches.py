@@ -36,7 +36,23 @@ def main() -> None:
     ap.add_argument("--objects", default="", help="comma-separated object ids (default: the Train split's B-labelled objects)")
     ap.add_argument("--yaws", default="-30,-20,-10,0,10,15,20,25,30", help="yaw grid, degrees")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--right-finger-flip", action="store_true",
+                    help="what-if, not the shipped expert: B's right hand posed a half turn about its approach axis "
+                         "(finger axis -f; the parallel gripper cannot tell the two apart)")  # fmt: skip
     a = ap.parse_args()
+    if a.right_finger_flip:
+        import flatlab_lerobot.strategies.b_squeeze as b_squeeze
+
+        targets = b_squeeze._b_targets
+        half_turn = np.diag([-1.0, -1.0, 1.0])  # tcp_rotation(approach, -f) == tcp_rotation(approach, f) @ this
+
+        def flipped(*args, **kw):
+            out = targets(*args, **kw)
+            p, R = out["right"]
+            out["right"] = (p, R @ half_turn)
+            return out
+
+        b_squeeze._b_targets = flipped
 
     from flatlab_lerobot.catalog import load_objects
     from flatlab_lerobot.env import FlatLabEnv
@@ -75,7 +91,9 @@ def main() -> None:
     m = machine()
     rec = {"what": __doc__.strip().splitlines()[0], "objects": objects, "yaws_deg": yaws, "episodes": rows,
            "jumps_over_2_rad": jumps, "objects_with_a_jump": sorted({j["object_id"] for j in jumps}),
-           "command": f"python scripts/expert_wrist_branches.py --yaws {a.yaws}" + (f" --objects {a.objects}" if a.objects else "") + f" --out {a.out}",
+           "right_finger_flip": a.right_finger_flip,
+           "command": f"python scripts/expert_wrist_branches.py --yaws {a.yaws}" + (f" --objects {a.objects}" if a.objects else "")
+           + (" --right-finger-flip" if a.right_finger_flip else "") + f" --out {a.out}",
            "wall_s": round(time.perf_counter() - t0, 1), "git_commit": (git_commit()["commit"] or "")[:7],
            "machine": f"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}"}  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
