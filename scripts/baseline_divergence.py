@@ -47,7 +47,7 @@ def main() -> None:
     from lerobot.scripts import lerobot_eval
 
     from flatlab_lerobot.evaluation.protocol import Evaluator
-    from flatlab_lerobot.paper.pipeline import device, git_commit, machine
+    from flatlab_lerobot.paper.pipeline import git_commit, machine_line
 
     if not (a.dataset / "meta" / "info.json").is_file():
         raise SystemExit(f"--dataset {a.dataset}: no LeRobotDataset there (meta/info.json missing)")
@@ -99,7 +99,6 @@ def main() -> None:
         open_loop = {"chunks": len(errs), "median_max_gap_rad": round(float(np.median(errs)), 4),
                      "max_gap_rad": round(float(np.max(errs)), 4)}  # fmt: skip
 
-    m_ = machine()
     rec = {
         "what": "a trained baseline replaying its own demo: closed loop from the demo's seed, open loop on the demo's frames",
         "policy": a.policy, "dataset": str(a.dataset), "episode": a.episode, "seed": seed, "object_id": object_id,
@@ -110,7 +109,7 @@ def main() -> None:
         "command": "python scripts/baseline_divergence.py --policy {} --dataset {} --episode {} --out {} -- {}".format(
             a.policy, a.dataset, a.episode, a.out, " ".join(a.env_args)),
         "wall_s": round(time.perf_counter() - t0, 1), "git_commit": (git_commit()["commit"] or "")[:7],
-        "machine": f"{m_['cpu_count']} CPU cores ({m_['cpu_model']}), device {device()}",
+        "machine": machine_line(),
     }  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = a.out.with_name(f".partial_{a.out.name}")

@@ -12,7 +12,7 @@ cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
 BIN=${BIN:-$PWD/.venv/bin}
 TRIALS=${TRIALS:-1}; STAGE=${STAGE:-all}; RECIPE=${RECIPE:-cpu}; SEED=${SEED:-1000}
-MACHINE=$($BIN/python -c "from flatlab_lerobot.paper.pipeline import device, machine; m = machine(); print(f\"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}\")")
+MACHINE=$($BIN/python -c "from flatlab_lerobot.paper.pipeline import machine_line; print(machine_line())")
 for id in ${*:-act flatlab_dp3 diffusion}; do
   conf=policies/$id/$RECIPE.json
   DATA=$(python3 -c "import json; print(json.load(open('$conf'))['dataset']['root'])")

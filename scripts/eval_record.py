@@ -6,7 +6,7 @@ import json
 import os
 from pathlib import Path
 
-from flatlab_lerobot.paper.pipeline import device, git_commit, machine
+from flatlab_lerobot.paper.pipeline import git_commit, machine_line
 
 
 def main() -> None:
@@ -23,9 +23,8 @@ def main() -> None:
         rec = json.loads(a.results.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise SystemExit(f"--results {a.results}: cannot read flatlab eval results ({e})")
-    m = machine()  # the same facts flatlab paper's stage records carry
     rec.update(what=a.what, command=a.command, wall_s=round(a.wall), git_commit=(git_commit()["commit"] or "")[:7],
-               machine=f"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}")  # fmt: skip
+               machine=machine_line())  # the same facts flatlab paper's stage records carry  # fmt: skip
     if a.note:
         rec["wall_note"] = a.note
     if a.train:

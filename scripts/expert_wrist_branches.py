@@ -56,7 +56,7 @@ def main() -> None:
 
     from flatlab_lerobot.catalog import load_objects
     from flatlab_lerobot.env import FlatLabEnv
-    from flatlab_lerobot.paper.pipeline import device, git_commit, machine
+    from flatlab_lerobot.paper.pipeline import git_commit, machine_line
     from flatlab_lerobot.rollout import ExpertPolicy, rollout
 
     cat = load_objects()
@@ -88,14 +88,13 @@ def main() -> None:
             big = [(r[i]["yaw_deg"], r[i + 1]["yaw_deg"]) for i in range(len(w) - 1) if abs(w[i + 1] - w[i]) > 2.0]
             if big:
                 jumps.append({"object_id": o, "arm": arm, "between_yaws_deg": big})
-    m = machine()
     rec = {"what": __doc__.strip().splitlines()[0], "objects": objects, "yaws_deg": yaws, "episodes": rows,
            "jumps_over_2_rad": jumps, "objects_with_a_jump": sorted({j["object_id"] for j in jumps}),
            "right_finger_flip": a.right_finger_flip,
            "command": f"python scripts/expert_wrist_branches.py --yaws {a.yaws}" + (f" --objects {a.objects}" if a.objects else "")
            + (" --right-finger-flip" if a.right_finger_flip else "") + f" --out {a.out}",
            "wall_s": round(time.perf_counter() - t0, 1), "git_commit": (git_commit()["commit"] or "")[:7],
-           "machine": f"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}"}  # fmt: skip
+           "machine": machine_line()}  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = a.out.with_name(f".partial_{a.out.name}")
     tmp.write_text(dumps(rec) + "\n")

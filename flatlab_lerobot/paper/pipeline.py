@@ -400,6 +400,12 @@ def device() -> str:
     return "cpu"
 
 
+def machine_line() -> str:
+    """``machine()`` and ``device()`` as the one line the hand-run result records carry."""
+    m = machine()
+    return f"{m['cpu_count']} CPU cores ({m['cpu_model']}), device {device()}"
+
+
 def git_commit() -> dict:
     def git(*a):
         r = subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True)
