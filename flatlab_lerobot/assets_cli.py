@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from flatlab_lerobot.assets import object_xml
+from flatlab_lerobot.atomic import replacing
 from flatlab_lerobot.catalog import (
     BENCHMARK_SPLITS,
     CatalogError,
@@ -170,12 +171,10 @@ def contact_sheet(out_png: str | Path, cols: int = 10, tile: int = 200, include_
 
 
 def _save_png(img, out_png: str | Path) -> Path:
-    """Write ``img`` (PIL) to ``out_png`` atomically (temp file in the same folder, then rename)."""
+    """Write ``img`` (PIL) to ``out_png`` crash-safely."""
     out = Path(out_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    img.save(tmp, format="PNG")
-    tmp.replace(out)
+    with replacing(out) as tmp:
+        img.save(tmp, format="PNG")
     return out
 
 

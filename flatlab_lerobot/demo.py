@@ -9,11 +9,11 @@ an interrupted demo never leaves a half-written file.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
+from flatlab_lerobot.atomic import replacing, write_text
 from flatlab_lerobot.catalog import REFERENCE_OBJECTS
 from flatlab_lerobot.env import FlatLabEnv
 from flatlab_lerobot.rollout import ExpertPolicy, rollout
@@ -53,12 +53,6 @@ def run_expert_episode(
     }
 
 
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def run_demo(out_dir: Path, strategies=("A", "B", "C"), seed: int = 0, size=(360, 480), fps: int = 10) -> list[dict]:
     import imageio.v3 as iio
     import mujoco
@@ -91,11 +85,10 @@ def run_demo(out_dir: Path, strategies=("A", "B", "C"), seed: int = 0, size=(360
         r.close()
         strip = _grid(keyframes, cols=4)
         stem = f"strategy_{strategy}_{object_id}"
-        _atomic_write(out_dir / f"{stem}_keyframes.png", lambda p, s=strip: iio.imwrite(p, s))
-        _atomic_write(
-            out_dir / f"{stem}.mp4",
-            lambda p, v=video: iio.imwrite(p, np.stack(v), plugin="pyav", codec="libx264", fps=fps),
-        )
+        with replacing(out_dir / f"{stem}_keyframes.png") as p:
+            iio.imwrite(p, strip)
+        with replacing(out_dir / f"{stem}.mp4") as p:
+            iio.imwrite(p, np.stack(video), plugin="pyav", codec="libx264", fps=fps)
         rec["keyframes_png"] = f"{stem}_keyframes.png"
         rec["video_mp4"] = f"{stem}.mp4"
         records.append(rec)
@@ -109,8 +102,8 @@ def run_demo(out_dir: Path, strategies=("A", "B", "C"), seed: int = 0, size=(360
         f"| {r['strategy']} | {r['object_id']} | {r['success']} | {r['sim_time_s']} | {r['wall_time_s']} | {r['keyframes_png']} |"
         for r in records
     ]
-    _atomic_write(out_dir / "summary.json", lambda p: p.write_text(json.dumps(records, indent=2)))
-    _atomic_write(out_dir / "summary.md", lambda p: p.write_text("\n".join(md) + "\n"))
+    write_text(out_dir / "summary.json", json.dumps(records, indent=2))
+    write_text(out_dir / "summary.md", "\n".join(md) + "\n")
     print(f"{sum(r['success'] for r in records)}/{len(records)} strategies succeeded; outputs in {out_dir}")
     return records
 

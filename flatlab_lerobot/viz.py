@@ -39,10 +39,13 @@ import json
 import os
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from flatlab_lerobot.atomic import replacing
 
 EXIT_USAGE = 2
 ARM_COLORS = {"left": (40, 120, 255), "right": (255, 80, 40)}
@@ -392,8 +395,7 @@ def view(root: Path, episode: int, *, save: Path | None = None, spawn: bool = Fa
     ds = load_episode(src)
     rec = rr.RecordingStream(f"flatlab/{src.repo_id}/episode_{episode}")
     bp = blueprint(src)
-    tmp = save.with_name(f".{save.name}.{os.getpid()}.tmp") if save is not None else None
-    try:
+    with replacing(save) if save is not None else nullcontext() as tmp:
         if spawn and tmp is not None:
             rec.spawn(connect=False)
             rec.set_sinks(rr.GrpcSink(), rr.FileSink(tmp), default_blueprint=bp)
@@ -407,10 +409,6 @@ def view(root: Path, episode: int, *, save: Path | None = None, spawn: bool = Fa
         if tmp is not None:
             if not tmp.is_file() or tmp.stat().st_size == 0:
                 raise RuntimeError(f"rerun wrote nothing to {tmp}")
-            os.replace(tmp, save)
-    finally:
-        if tmp is not None and tmp.exists():
-            tmp.unlink()
     counts.update(wall_s=round(time.perf_counter() - t0, 2), episode=episode, root=str(src.root),
                   rrd=str(save) if save else None, rrd_bytes=save.stat().st_size if save else None)  # fmt: skip
     return counts

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import re
 import time
 from pathlib import Path
@@ -46,6 +45,7 @@ def main() -> None:
     from lerobot.envs import make_env
     from lerobot.scripts import lerobot_eval
 
+    from flatlab_lerobot.atomic import write_text
     from flatlab_lerobot.evaluation.protocol import Evaluator
     from flatlab_lerobot.paper.pipeline import git_commit, machine_line
 
@@ -111,10 +111,7 @@ def main() -> None:
         "wall_s": round(time.perf_counter() - t0, 1), "git_commit": (git_commit()["commit"] or "")[:7],
         "machine": machine_line(),
     }  # fmt: skip
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_name(f".partial_{a.out.name}")
-    tmp.write_text(dumps(rec) + "\n")
-    os.replace(tmp, a.out)
+    write_text(a.out, dumps(rec) + "\n")
     print(f"wrote {a.out}: start gap {rec['start_state_gap_rad']}, open loop {open_loop}")
     for c in closed[:: max(1, n // 12)]:
         print(c["step"], c["max_state_gap_rad"], c["max_action_gap_rad"], np.round(c["state_gap_per_joint_rad"], 2))

@@ -3,9 +3,9 @@ the metrics as they are, plus what ran, the command, seeds, wall time, training 
 
 import argparse
 import json
-import os
 from pathlib import Path
 
+from flatlab_lerobot.atomic import write_json
 from flatlab_lerobot.paper.pipeline import git_commit, machine_line
 
 
@@ -32,10 +32,7 @@ def main() -> None:
             rec["training"] = json.loads(a.train.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise SystemExit(f"--train {a.train}: cannot read ({e})")
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_name(f".partial_{a.out.name}")
-    tmp.write_text(json.dumps(rec, indent=1) + "\n")
-    os.replace(tmp, a.out)
+    write_json(a.out, rec)
     print(f"wrote {a.out}")
 
 

@@ -2,7 +2,6 @@
 the recipe portably, lists only the modalities the dataset has, cites the paper and this project, and
 ``flatlab push --card-out`` writes it readable like any other file."""
 
-import os
 import re
 from pathlib import Path
 
@@ -60,14 +59,3 @@ def test_card_cites_the_paper_and_the_project():
     assert "## Citation" in card and card.count("```bibtex") == 2
     assert "FlatLab: A Unified Methodology Framework and Simulation-Based Benchmark" in card
     assert "Zhu, Xingyu" in card and "Gao, Yixing" in card and "@software{flatlab_lerobot" in card
-
-
-def test_card_file_is_written_with_normal_permissions(tmp_path):
-    from flatlab_lerobot.collect.hub import _write_atomic
-
-    old = os.umask(0o022)
-    try:
-        _write_atomic(tmp_path / "card.md", "# card\n")
-    finally:
-        os.umask(old)
-    assert (tmp_path / "card.md").stat().st_mode & 0o777 == 0o644

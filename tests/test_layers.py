@@ -19,7 +19,7 @@ ROOT = Path(flatlab_lerobot.__file__).parent
 
 # Layers, lowest first: a module may import its own layer's modules and the layers below only.
 LAYERS: list[tuple[str, ...]] = [
-    ("paths", "constants"),  # leaves
+    ("paths", "constants", "atomic"),  # leaves
     ("catalog",),  # typed specs from envs/ YAML
     ("assets",),  # geometry builders
     ("sim",),  # scene, physics, robot, cameras

@@ -411,10 +411,9 @@ def main(argv=None) -> int:
         from flatlab_lerobot.paths import OUTPUTS_DIR
 
         args.json = OUTPUTS_DIR / "bench" / f"collect_speed_{recipe.name}.json"
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.json.with_name(args.json.name + ".tmp")
-    tmp.write_text(json.dumps(res, indent=2))
-    os.replace(tmp, args.json)
+    from flatlab_lerobot.atomic import write_json
+
+    write_json(args.json, res, indent=2)
     print(f"-> {args.json}")
     return 0
 

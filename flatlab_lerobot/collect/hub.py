@@ -30,12 +30,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from flatlab_lerobot.atomic import write_text
 from flatlab_lerobot.collect.store import EPISODES_JSONL, META_JSON, READY
 
 INFO_JSON = "meta/info.json"
@@ -184,21 +183,6 @@ def _check_repo_id(repo_id: str) -> str:
     return repo_id
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes it 0600: a card is for reading, as any file written
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 # ---------------------------------------------------------------------------------- upload
 def push(
     ds: LocalDataset,
@@ -299,7 +283,7 @@ def main(argv=None) -> int:
         print(f"[push] note: {staging} exists (a collection is running or was interrupted); "
               "pushing the last committed version", file=sys.stderr)  # fmt: skip
     if args.card_out:
-        _write_atomic(args.card_out, card)
+        write_text(args.card_out, card)
     files = upload_files(ds.root, not args.no_videos)
     if args.dry_run:
         size = sum((ds.root / f).stat().st_size for f in files)

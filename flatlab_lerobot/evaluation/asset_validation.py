@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
+from flatlab_lerobot.atomic import replacing, write_text
 from flatlab_lerobot.catalog import BENCHMARK_SPLITS, benchmark_objects
 from flatlab_lerobot.transforms import label as rule_label
 
@@ -273,22 +273,11 @@ def apply_labels(rows: list[dict], trials_note: str) -> list[str]:
                 block.insert(k + 1, f"{indent}paper_strategy: {r['paper']}\n")
             lines[start:end] = block
             changed.append(r["object_id"])
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text("".join(lines))
-        try:  # the edited file must still parse into the same objects
+        with replacing(path, mkdir=False) as tmp:  # replaced only if the edit still parses into the same objects
+            tmp.write_text("".join(lines))
             for raw in yaml.safe_load(tmp.read_text())["objects"]:
                 parse_object(raw, str(path))
-        except Exception:
-            tmp.unlink()
-            raise
-        os.replace(tmp, path)
     return changed
-
-
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:
@@ -324,7 +313,7 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             rc = subprocess.call(cmd)
             timing[s] = timing.get(s, 0.0) + time.perf_counter() - t0
-            _atomic(timing_path, json.dumps(timing))
+            write_text(timing_path, json.dumps(timing))
             if rc != 0:
                 print(f"error: the strategy-{s} run failed (exit {rc}); re-run to resume", file=sys.stderr)
                 return rc
@@ -341,9 +330,9 @@ def main(argv=None) -> int:
         "date": time.strftime("%Y-%m-%d"), "objects": len(objects), "trials": args.trials, "seed": args.seed,
         "workers": args.workers, "wall_s": timing,
     }  # fmt: skip
-    _atomic(out / "report.md", markdown(result, meta))
+    write_text(out / "report.md", markdown(result, meta))
     serial = {**result, "categories": {c: {**v, "labels": sorted(v["labels"])} for c, v in result["categories"].items()}}
-    _atomic(out / "report.json", json.dumps({"meta": meta, **serial}, indent=2))
+    write_text(out / "report.json", json.dumps({"meta": meta, **serial}, indent=2))
     failing = [c for c, v in result["categories"].items() if v["labelled"][1] and v["labelled"][0] / v["labelled"][1] < CATEGORY_BAR]
     print(f"[report] {out / 'report.md'}: {len(result['categories']) - len(failing)}/{len(result['categories'])} categories "
           f">= {100 * CATEGORY_BAR:.0f} %" + (f"; below: {', '.join(sorted(failing))}" if failing else ""))  # fmt: skip

@@ -23,7 +23,8 @@ import math
 from collections import Counter
 from pathlib import Path
 
-from flatlab_lerobot.evaluation.protocol import RESULTS_JSONL, RUN_JSON, _atomic_text
+from flatlab_lerobot.atomic import write_text
+from flatlab_lerobot.evaluation.protocol import RESULTS_JSONL, RUN_JSON
 
 
 class CompareError(SystemExit):
@@ -176,7 +177,7 @@ def main(argv=None) -> int:
     print(markdown(res, f"{a.run_a} ({run_a.get('policy', '?')})", f"{a.run_b} ({run_b.get('policy', '?')})"), end="")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_text(a.json, json.dumps(res, indent=1) + "\n")
+        write_text(a.json, json.dumps(res, indent=1) + "\n")
         print(f"wrote {a.json}")
     return 0
 

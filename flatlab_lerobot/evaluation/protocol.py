@@ -56,6 +56,7 @@ import traceback
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+from flatlab_lerobot.atomic import replacing, write_text
 from flatlab_lerobot.catalog import BENCHMARK_SPLITS, benchmark_objects, get_object
 
 BUILTIN = {
@@ -403,7 +404,7 @@ def check_run(out: Path, run: dict) -> None:
         jsonl = out / RESULTS_JSONL
         if jsonl.exists() and jsonl.stat().st_size > 0:
             raise EvalError(f"{jsonl}: trials of an older flatlab eval (no {RUN_JSON} beside it): use another --out")
-        _atomic_text(path, json.dumps(run, indent=2))
+        write_text(path, json.dumps(run, indent=2))
 
 
 def select_objects(splits, objects) -> list[str]:
@@ -515,16 +516,9 @@ def plot(summary: dict, path: Path) -> None:
     ax.set_title(f"policy {summary['config']['policy']}"[-60:])
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    tmp = path.with_name(".partial_" + path.name)
-    fig.savefig(tmp, format="png", dpi=120)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
     plt.close(fig)
-    os.replace(tmp, path)
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(".partial_" + path.name)
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _slug(policy: str) -> str:
@@ -668,8 +662,8 @@ def main(argv=None) -> int:
         return 0
     records = [done[(o, t)] for o in objects for t in range(args.trials)]
     summary = summarize(records, config)
-    _atomic_text(out / "results.json", json.dumps(summary, indent=2))
-    _atomic_text(out / "results.md", markdown(summary))
+    write_text(out / "results.json", json.dumps(summary, indent=2))
+    write_text(out / "results.md", markdown(summary))
     if not args.no_plot:
         plot(summary, out / "results.png")
     ov = summary["overall"]

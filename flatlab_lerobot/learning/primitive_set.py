@@ -70,6 +70,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flatlab_lerobot.atomic import replacing, write_json
 from flatlab_lerobot.learning import int_at_least
 from flatlab_lerobot.paths import OUTPUTS_DIR
 from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
@@ -588,30 +589,28 @@ def _merge(cfg: PrimitiveSetConfig, out: Path, shards_dir: Path, metas: list[dic
         n_total += meta["samples"]
     (out / META).unlink(missing_ok=True)  # from here on the folder is incomplete until meta.json
     for name, width in (("scene_clouds.npy", cfg.n_points), ("object_clouds.npy", cfg.n_object_points)):
-        tmp = out / f".{name}.partial"
-        arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(n_total, width, 3))
-        i = 0
-        for meta in metas:
-            if meta["samples"]:
-                part = np.load(shards_dir / meta["object_id"] / name, mmap_mode="r")
-                if part.shape != (meta["samples"], width, 3):
-                    raise PrimitiveSetError(
-                        f"{shards_dir / meta['object_id'] / name}: shape {part.shape} does not "
-                        f"match shard.json ({meta['samples']} samples of {width} points)"
-                    )
-                arr[i : i + len(part)] = part
-                i += len(part)
-        arr.flush()
-        del arr
-        os.replace(tmp, out / name)
-    tmp = out / ".samples.parquet.partial"
+        with replacing(out / name) as tmp:
+            arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(n_total, width, 3))
+            i = 0
+            for meta in metas:
+                if meta["samples"]:
+                    part = np.load(shards_dir / meta["object_id"] / name, mmap_mode="r")
+                    if part.shape != (meta["samples"], width, 3):
+                        raise PrimitiveSetError(
+                            f"{shards_dir / meta['object_id'] / name}: shape {part.shape} does not "
+                            f"match shard.json ({meta['samples']} samples of {width} points)"
+                        )
+                    arr[i : i + len(part)] = part
+                    i += len(part)
+            arr.flush()
+            del arr
     if tables:
         table = pa.concat_tables(tables)
         table = table.add_column(0, "sample_index", pa.array(np.arange(table.num_rows, dtype=np.int64)))
     else:
         table = pa.table({"sample_index": pa.array([], pa.int64())})
-    pq.write_table(table, tmp)
-    os.replace(tmp, out / "samples.parquet")
+    with replacing(out / "samples.parquet") as tmp:
+        pq.write_table(table, tmp)
 
     demos = [d for m in metas for d in m["demos"]]
     per_object = {
@@ -674,9 +673,7 @@ def _merge(cfg: PrimitiveSetConfig, out: Path, shards_dir: Path, metas: list[dic
         "demos": demos,
         **extra,
     }
-    tmp = out / f".{META}.partial"
-    tmp.write_text(json.dumps(meta, indent=1))
-    os.replace(tmp, out / META)
+    write_json(out / META, meta)
     return meta
 
 

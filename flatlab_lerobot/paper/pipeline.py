@@ -50,6 +50,7 @@ from pathlib import Path
 
 import yaml
 
+from flatlab_lerobot.atomic import write_json
 from flatlab_lerobot.paths import OUTPUTS_DIR
 
 HERE = Path(__file__).resolve().parent
@@ -523,11 +524,7 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
     }  # fmt: skip
     if before:  # wall_s covers this run's trials only
         rec["paper_stage"]["resumed"] = {"trials_before": before, "trials_this_run": _trials_saved(out) - before}
-    path = ctx.record_path(st.name)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".partial_{path.name}")
-    tmp.write_text(json.dumps(rec, indent=1) + "\n")
-    os.replace(tmp, path)
+    write_json(ctx.record_path(st.name), rec)
     return rec
 
 
