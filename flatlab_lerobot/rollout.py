@@ -36,13 +36,14 @@ from flatlab_lerobot.tasks import get_task, mean_squared_jerk
 class ExpertPolicy:
     """The scripted expert as a policy: strategy ``strategy`` ("A" | "B" | "C") posed from each
     observation's ``agent_pos`` and ``environment_state``; ``.stage`` / ``.primitive`` name the
-    primitive the last action belongs to."""
+    primitive the last action belongs to.  ``options``: :class:`~flatlab_lerobot.strategies.expert.ExpertOptions`
+    (None: the default expert)."""
 
-    def __init__(self, strategy: str, cell=None, control_dt: float = 0.1, expert=None):
+    def __init__(self, strategy: str, cell=None, control_dt: float = 0.1, expert=None, options=None):
         from flatlab_lerobot.strategies import Expert
 
         self.strategy = strategy
-        self.expert = expert or Expert(cell, control_dt)
+        self.expert = expert or Expert(cell, control_dt, options)
         self.stage, self.primitive = "", -1
         self._obs: dict | None = None
         self._gen = None

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
@@ -37,27 +36,18 @@ def main() -> None:
     ap.add_argument("--yaws", default="-30,-20,-10,0,10,15,20,25,30", help="yaw grid, degrees")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--right-finger-flip", action="store_true",
-                    help="what-if, not the shipped expert: B's right hand posed a half turn about its approach axis "
-                         "(finger axis -f; the parallel gripper cannot tell the two apart)")  # fmt: skip
+                    help="the expert's option b_right_half_turn (ExpertOptions): B's right hand posed a half turn about "
+                         "its approach axis (finger axis -f; the parallel gripper cannot tell the two apart)")  # fmt: skip
     a = ap.parse_args()
-    if a.right_finger_flip:
-        import flatlab_lerobot.strategies.b_squeeze as b_squeeze
 
-        targets = b_squeeze._b_targets
-        half_turn = np.diag([-1.0, -1.0, 1.0])  # tcp_rotation(approach, -f) == tcp_rotation(approach, f) @ this
-
-        def flipped(*args, **kw):
-            out = targets(*args, **kw)
-            p, R = out["right"]
-            out["right"] = (p, R @ half_turn)
-            return out
-
-        b_squeeze._b_targets = flipped
-
+    from flatlab_lerobot.atomic import write_text
     from flatlab_lerobot.catalog import load_objects
     from flatlab_lerobot.env import FlatLabEnv
     from flatlab_lerobot.paper.pipeline import git_commit, machine_line
     from flatlab_lerobot.rollout import ExpertPolicy, rollout
+    from flatlab_lerobot.strategies.expert import ExpertOptions
+
+    options = ExpertOptions(b_right_half_turn=a.right_finger_flip)
 
     cat = load_objects()
     objects = [o for o in a.objects.split(",") if o] or sorted(o for o, s in cat.items() if s.split == "train" and s.strategy == "B")
@@ -72,7 +62,7 @@ def main() -> None:
         try:
             for yaw in yaws:
                 strategy = cat[o].strategy
-                ep = rollout(env, ExpertPolicy(strategy, env.cell, env.control_dt), seed=0,
+                ep = rollout(env, ExpertPolicy(strategy, env.cell, env.control_dt, options=options), seed=0,
                              options={"placement": (0.0, 0.0, np.deg2rad(yaw))}, before_step=lambda st: np.asarray(st.action))
                 acts = np.stack(ep.frames)
                 rows.append({"object_id": o, "strategy": strategy, "yaw_deg": yaw, "success": ep.success, "steps": ep.steps,
@@ -95,10 +85,7 @@ def main() -> None:
            + (" --right-finger-flip" if a.right_finger_flip else "") + f" --out {a.out}",
            "wall_s": round(time.perf_counter() - t0, 1), "git_commit": (git_commit()["commit"] or "")[:7],
            "machine": machine_line()}  # fmt: skip
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_name(f".partial_{a.out.name}")
-    tmp.write_text(dumps(rec) + "\n")
-    os.replace(tmp, a.out)
+    write_text(a.out, dumps(rec) + "\n")
     print(f"wrote {a.out}: {len(rec['objects_with_a_jump'])} of {len(objects)} objects with a wrist jump > 2 rad: {jumps}")
 
 

@@ -124,6 +124,9 @@ def test_shipped_recipes_load():
         ({"randomization": {"friction_scale": "wet"}}, "randomization.friction_scale"),
         ({"randomization": {"camera_rot_jitter_deg": -1}}, "randomization.camera_rot_jitter_deg"),
         ({"randomization": {"light": 1}}, "randomization.light"),
+        ({"expert": {"b_right_half_turn": "yes"}}, "expert.b_right_half_turn"),
+        ({"expert": {"left_half_turn": True}}, "expert.left_half_turn"),
+        ({"expert": True}, "expert"),
     ],
 )
 def test_malformed_recipe_names_file_and_field(tmp_path, over, field):
@@ -155,6 +158,17 @@ def test_workers_and_commit_size_do_not_change_the_fingerprint():
     assert dataclasses.replace(r, workers=4, commit_every=7).fingerprint() == r.fingerprint()
     fast = recipe_from_dict({**TINY, "video": {"preset": "veryfast", "depth_preset": "ultrafast"}}, "t.yaml")
     assert fast.video.preset == "veryfast" and fast.fingerprint() != r.fingerprint()
+
+
+def test_expert_options_change_the_fingerprint_and_the_default_keeps_older_ones():
+    r = recipe_from_dict(TINY, "t.yaml")
+    same = recipe_from_dict({**TINY, "expert": {"b_right_half_turn": False}}, "t.yaml")
+    turned = recipe_from_dict({**TINY, "expert": {"b_right_half_turn": True}}, "t.yaml")
+    assert not r.expert.b_right_half_turn and turned.expert.b_right_half_turn
+    assert same.fingerprint() == r.fingerprint() != turned.fingerprint()
+    assert "expert" not in r.to_dict() or r.to_dict()["expert"] == {"b_right_half_turn": False}
+    # the collected overfit_box_shoe demos (stop 54) carry this fingerprint; the field added later must keep it
+    assert load_recipe(REPO / "datasets" / "overfit_box_shoe.yaml").fingerprint() == "49bdc84f6057a2db"
 
 
 def test_cli_rejects_bad_worker_count(tmp_path, capsys):

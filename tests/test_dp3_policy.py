@@ -203,29 +203,40 @@ def test_baseline_recipes_are_offline_and_never_read_privileged_state(recipe):
         assert cfg.policy.device == "cpu" and cfg.num_workers <= 1 and cfg.dataset.root.endswith("baselines_cpu")
 
 
+@pytest.mark.parametrize("name", ["overfit_box_shoe", "overfit_box_shoe_half_turn"])
 @pytest.mark.parametrize("baseline", ["flatlab_dp3", "act"])
-def test_overfit_recipes_are_the_cpu_recipes_on_one_object(baseline):
+def test_overfit_recipes_are_the_cpu_recipes_on_one_object(baseline, name):
     """The overfit check (docs/baselines.md) changes only the data (box_shoe's demos), the length and
     the loader: the model, its inputs and the optimizer are the cpu recipe's, so its result speaks
-    for the cpu rows."""
+    for the cpu rows.  The half-turn pair differs from the first only in the expert's option."""
+    import dataclasses
+
     import draccus
     from lerobot.configs.train import TrainPipelineConfig
 
     from flatlab_lerobot.collect.recipe import load_recipe
 
-    path = REPO / "policies" / baseline / "overfit_box_shoe.json"
+    path = REPO / "policies" / baseline / f"{name}.json"
     cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=["--output_dir=/tmp/never_written"])
     assert cfg.policy.type == baseline and cfg.policy.push_to_hub is False
     cpu = json.loads((REPO / "policies" / baseline / "cpu.json").read_text())
     over = json.loads(path.read_text())
     assert over["policy"] == cpu["policy"] and over["batch_size"] == cpu["batch_size"]
-    assert over["dataset"]["root"] == "outputs/datasets/overfit_box_shoe"
+    assert over["dataset"]["root"] == f"outputs/datasets/{name}"
     changed = {k for k in {*cpu, *over} if k not in ("dataset", "policy") and cpu.get(k) != over.get(k)}
     assert changed <= {"steps", "num_workers", "output_dir"}, changed
-    demos, base = load_recipe("overfit_box_shoe"), load_recipe("baselines_cpu")
+    first = json.loads((REPO / "policies" / baseline / "overfit_box_shoe.json").read_text())
+    assert {k: v for k, v in over.items() if k not in ("dataset", "output_dir")} == {
+        k: v for k, v in first.items() if k not in ("dataset", "output_dir")
+    }
+    demos, base = load_recipe(name), load_recipe("baselines_cpu")
     assert demos.objects == ("box_shoe",) and "box_shoe" in base.objects
     for field in ("cameras", "image_size", "n_points", "modalities", "randomization", "max_steps", "fps"):
         assert getattr(demos, field) == getattr(base, field), field
+    assert demos.expert.b_right_half_turn == name.endswith("half_turn")
+    plain = load_recipe("overfit_box_shoe")
+    assert dataclasses.replace(demos, name=plain.name, description=plain.description, source=plain.source,
+                               repo_id=plain.repo_id, expert=plain.expert) == plain  # fmt: skip
 
 
 def test_demo_recipes_record_no_privileged_state_and_fit_the_horizons():

@@ -120,3 +120,57 @@ def test_runner_reach_tol_refuses_a_start_out_of_reach_before_any_action():
     with pytest.raises(Unreachable, match="touch: start missed by left") as err:
         next(steps)
     assert err.value.miss["left"] > 0.3
+
+
+def _final_right_wrist(object_id, yaw_deg, **options):
+    import numpy as np
+
+    from flatlab_lerobot.env import FlatLabEnv
+    from flatlab_lerobot.rollout import ExpertPolicy, rollout
+    from flatlab_lerobot.strategies.expert import ExpertOptions
+
+    env = FlatLabEnv(object_id=object_id, obs_pixels=False, obs_pointcloud=False)
+    try:
+        policy = ExpertPolicy("B", env.cell, env.control_dt, options=ExpertOptions(**options))
+        ep = rollout(env, policy, seed=0, options={"placement": (0.0, 0.0, np.deg2rad(yaw_deg))},
+                     before_step=lambda st: np.asarray(st.action))  # fmt: skip
+    finally:
+        env.close()
+    return ep.success, float(ep.frames[-1][14])  # action (16,): right arm joints at 8..14
+
+
+def test_b_right_half_turn_keeps_the_right_wrist_inside_its_range():
+    """box_shoe at yaw 25 deg (docs/results/expert_wrist_branches*.json): the default expert's right wrist
+    ends at its +2.897 rad limit (past the jump at yaw 15-20 deg); with ``b_right_half_turn`` the right hand
+    is the left hand's mirror image, the wrist well inside its range, and the box is still lifted."""
+    ok, wrist = _final_right_wrist("box_shoe", 25.0)
+    assert ok and wrist > 2.85, wrist
+    ok, wrist = _final_right_wrist("box_shoe", 25.0, b_right_half_turn=True)
+    assert ok and 0.0 < wrist < 1.0, wrist
+
+
+def test_b_right_half_turn_turns_only_the_right_hand():
+    import numpy as np
+
+    from flatlab_lerobot.strategies.b_squeeze import HALF_TURN, _b_targets
+    from flatlab_lerobot.strategies.world import World
+
+    w = World(np.array([0.05, -0.02, 0.8]), 0.4, np.array([0.3, 0.2, 0.06]), False, 0.76, 0.5)
+    plain, turned = _b_targets(w, 0.0), _b_targets(w, 0.0, right_half_turn=True)
+    np.testing.assert_allclose(turned["left"][1], plain["left"][1])
+    np.testing.assert_allclose(turned["right"][1], plain["right"][1] @ HALF_TURN)
+    for arm in ("left", "right"):
+        np.testing.assert_allclose(turned[arm][0], plain[arm][0])
+    # the same approach axis (the hand's z), the finger axis reversed
+    np.testing.assert_allclose(turned["right"][1][:, 2], plain["right"][1][:, 2])
+    np.testing.assert_allclose(turned["right"][1][:, :2], -plain["right"][1][:, :2])
+
+
+def test_the_scripted_policy_passes_the_option_to_its_experts():
+    """``flatlab eval --policy oracle --policy.b_right_half_turn=true`` (docs/baselines.md) reaches the expert."""
+    from flatlab_lerobot.policies.scripted import FlatLabScriptedConfig
+    from flatlab_lerobot.policies.scripted.modeling_flatlab_scripted import FlatLabScriptedPolicy
+
+    for on in (False, True):
+        policy = FlatLabScriptedPolicy(FlatLabScriptedConfig(device="cpu", b_right_half_turn=on))
+        assert policy._expert(0, None).options.b_right_half_turn is on

@@ -18,6 +18,7 @@ Example (``datasets/tiny_rigid.yaml``)::
     modalities: [rgb, depth, pointcloud, object_pointcloud, ee_pose, environment_state]
     commit_every: 1              # episodes per crash-safe commit
     workers: 1                   # simulation processes (``--workers`` overrides); same data for any N
+    expert: {b_right_half_turn: false}  # the scripted expert's options (strategies.expert.ExpertOptions)
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import yaml
 
 from flatlab_lerobot.paths import DATASETS_DIR
 from flatlab_lerobot.sim.domain import Domain, sample_domain
+from flatlab_lerobot.strategies.expert import ExpertOptions
 from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG
 
 MODALITIES = ("rgb", "depth", "pointcloud", "object_pointcloud", "ee_pose", "environment_state")
@@ -95,6 +97,7 @@ class Recipe:
     pointcloud_cameras: tuple[str, ...] | None = None
     randomization: Randomization = field(default_factory=Randomization)
     video: VideoOptions = field(default_factory=VideoOptions)
+    expert: ExpertOptions = field(default_factory=ExpertOptions)  # the scripted expert's options
     commit_every: int = 1  # episodes per crash-safe commit (a crash re-runs at most this many)
     workers: int = 1  # simulation worker processes (the dataset is the same for any number)
     robot_type: str = "flatlab_dual_panda"
@@ -137,6 +140,8 @@ class Recipe:
         for k in ("joint_noise", "camera_pos_jitter", "camera_rot_jitter_deg", "mass_scale", "friction_scale"):
             if d["randomization"].get(k) == nominal[k]:  # added later: the nominal value keeps older fingerprints
                 d["randomization"].pop(k, None)
+        if d["expert"] == dataclasses.asdict(ExpertOptions()):  # added later: the default expert keeps older fingerprints
+            d.pop("expert")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -314,6 +319,9 @@ def recipe_from_dict(raw: Any, source: str = "<dict>") -> Recipe:
     )
     if kw["video"].preset is not None and kw["video"].vcodec not in ("h264", "hevc", "libx264", "libx265"):
         raise v.err("video.preset", f"presets are x264/x265 names; not for vcodec {kw['video'].vcodec!r}")
+    exp_keys = {f.name for f in dataclasses.fields(ExpertOptions)}
+    e = v.mapping("expert", raw.get("expert"), exp_keys)
+    kw["expert"] = ExpertOptions(**{k: v.boolean(f"expert.{k}", e[k]) for k in sorted(e)})
     if "commit_every" in raw:
         kw["commit_every"] = v.integer("commit_every", raw["commit_every"], 1, 10_000)
     if "workers" in raw:

@@ -208,7 +208,7 @@ def run_episode(recipe: Recipe, episode_index: int, env=None, cache: EnvCache | 
         t_loop = time.perf_counter()
 
     ep = rollout(
-        env, ExpertPolicy(strategy, env.cell, recipe.control_dt), seed=seed,
+        env, ExpertPolicy(strategy, env.cell, recipe.control_dt, options=recipe.expert), seed=seed,
         options={"placement": placement, "domain": domain}, max_steps=recipe.max_steps, on_reset=on_reset,
         before_step=lambda st: _frame(recipe, st.env, st.obs, st.action, st.stage, st.primitive), catch_errors=True,
     )  # fmt: skip

@@ -17,7 +17,12 @@ S_SQUEEZE = StageSpec("squeeze", 0.6, start="current")
 S_LIFT = StageSpec("lift", 1.6, start="current")
 
 
-def _b_targets(w: World, inset: float, dz: float = 0.0):
+HALF_TURN = np.diag([-1.0, -1.0, 1.0])  # tcp_rotation(approach, -f) == tcp_rotation(approach, f) @ HALF_TURN
+
+
+def _b_targets(w: World, inset: float, dz: float = 0.0, right_half_turn: bool = False):
+    """Each hand's pose beside its end of the squeeze axis; ``right_half_turn``: the right hand turned a
+    half turn about its approach axis (``ExpertOptions.b_right_half_turn``)."""
     u, half = w.squeeze_axis()
     z = w.table_height + max(0.014, w.size[2] - 0.04) + dz
     f = np.cross(vec(0, 0, 1), u)
@@ -25,7 +30,7 @@ def _b_targets(w: World, inset: float, dz: float = 0.0):
     out = {}
     for arm, s in (("left", 1.0), ("right", -1.0)):
         p = w.pos + s * (half + FINGER_HALF_WIDTH - inset) * u
-        out[arm] = (vec(p[0], p[1], z), R)
+        out[arm] = (vec(p[0], p[1], z), R @ HALF_TURN if arm == "right" and right_half_turn else R)
     return out
 
 
@@ -38,14 +43,15 @@ def b_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     the hand then pressed on the top instead of squeezing the side."""
     top = w.table_height + w.size[2] + B_ABOVE
     motions = {}
-    for a, (p, R) in _b_targets(w, -0.04).items():
+    for a, (p, R) in _b_targets(w, -0.04, right_half_turn=ex.options.b_right_half_turn).items():
         above = (vec(p[0], p[1], max(p[2], top)), R)
         motions[a] = ArmMotion(above, above, (B_OPEN, B_OPEN))
     return S_PREAPPROACH.make(motions)
 
 
 def b_touch(ex, w: World, poses, grip, ctx) -> Primitive:
-    far, near = _b_targets(w, -0.04), _b_targets(w, 0.0)
+    turn = ex.options.b_right_half_turn
+    far, near = _b_targets(w, -0.04, right_half_turn=turn), _b_targets(w, 0.0, right_half_turn=turn)
     motions = {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}
     return S_TOUCH.make(motions)
 

@@ -3,6 +3,8 @@ and link clearance, and the episode generator that runs a strategy's stages (:da
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import mujoco
 import numpy as np
 
@@ -25,11 +27,26 @@ LINK_CLEARANCE = 0.07  # an arm link's frame must stay this far above the table 
 TRANSIT_SWEEP = 0.05  # a transit whose hand strays further than this sideways or below the straight line loses to one that does not (m)
 
 
+@dataclass(frozen=True)
+class ExpertOptions:
+    """Choices of the scripted expert that change its demos.  All off is the expert that every committed
+    result so far used (oracle G, learning sets, baseline demos).
+
+    ``b_right_half_turn``: strategy B's right hand is posed a half turn about its approach axis (its
+    finger axis reversed).  The parallel gripper grips the same either way, but the right wrist (joint 7)
+    then stays inside its range: with it off, the right wrist ends at -1.7..-2.7 rad up to an object yaw
+    of 10-30 deg and at its +2.897 rad limit beyond, a jump of ~5 rad that joint-space imitation learners
+    see as two modes (docs/baselines.md, "the expert's right-wrist branch jump")."""
+
+    b_right_half_turn: bool = False
+
+
 class Expert:
     """Scripted expert with its own kinematic model of the two arms (no object)."""
 
-    def __init__(self, cell: CellConfig | None = None, control_dt: float = 0.1):
+    def __init__(self, cell: CellConfig | None = None, control_dt: float = 0.1, options: ExpertOptions | None = None):
         self.cell = cell or CellConfig()
+        self.options = options or ExpertOptions()
         self.model = build_model(self.cell, None)
         self.data = mujoco.MjData(self.model)
         self.arms = {a: ArmIndex.build(self.model, a) for a in ARMS}
@@ -151,13 +168,14 @@ class ExpertCache:
     and each is built once (building compiles a MuJoCo model) and reused by later episodes of that
     element in the same cell.  ``cell``: ``observation.cell`` (None: the default cell)."""
 
-    def __init__(self, control_dt: float):
+    def __init__(self, control_dt: float, options: ExpertOptions | None = None):
         self.control_dt = control_dt
+        self.options = options
         self._experts: dict = {}
 
     def get(self, i: int, cell=None) -> Expert:
         key = (i, None if cell is None else tuple(np.round(np.asarray(cell, np.float64), 6)))
         if key not in self._experts:
             cfg = None if key[1] is None else CellConfig.from_calibration(key[1])
-            self._experts[key] = Expert(cfg, self.control_dt)
+            self._experts[key] = Expert(cfg, self.control_dt, self.options)
         return self._experts[key]

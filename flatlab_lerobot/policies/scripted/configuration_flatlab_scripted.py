@@ -10,6 +10,9 @@ The policy needs no training and no checkpoint.  ``strategy``:
 It reads ``observation.state`` (16,), ``observation.environment_state`` (14,) and ``observation.cell``
 (7,: the cell's table and arm-base calibration, from which it builds its kinematic model) *un-normalized*:
 its processors have no normalizer step, and ``normalization_mapping`` is IDENTITY everywhere.
+
+``b_right_half_turn``: the expert's option of that name (``strategies.expert.ExpertOptions``): B's right
+hand posed a half turn about its approach axis, so its wrist stays inside its range.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ class FlatLabScriptedConfig(PreTrainedConfig):
     strategy: str = "auto"  # "auto" | "A" | "B" | "C"
     thick_threshold: float = 0.04  # m: "auto" picks B for objects at least this thick
     control_dt: float = 0.1  # s: must match the env's 1/fps
+    b_right_half_turn: bool = False  # ExpertOptions.b_right_half_turn
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self):

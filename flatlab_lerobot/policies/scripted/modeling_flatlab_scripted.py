@@ -14,7 +14,7 @@ from torch import Tensor
 from flatlab_lerobot.lerobot_env import OBS_CELL
 from flatlab_lerobot.policies.scripted.configuration_flatlab_scripted import FlatLabScriptedConfig
 from flatlab_lerobot.sim.core import ENV_STATE_INDEX
-from flatlab_lerobot.strategies.expert import ExpertCache
+from flatlab_lerobot.strategies.expert import ExpertCache, ExpertOptions
 
 
 def pick_strategy(env_state, thick_threshold: float = 0.04) -> str:
@@ -48,7 +48,7 @@ class FlatLabScriptedPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self._experts = ExpertCache(config.control_dt)
+        self._experts = ExpertCache(config.control_dt, ExpertOptions(b_right_half_turn=config.b_right_half_turn))
         self._episodes: list[_Episode] | None = None
 
     def _expert(self, i: int, cell: np.ndarray | None):
