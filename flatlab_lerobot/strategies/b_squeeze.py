@@ -34,6 +34,11 @@ def _b_targets(w: World, inset: float, dz: float = 0.0, right_half_turn: bool = 
     return out
 
 
+def _right_half_turn(ex) -> bool:
+    """The expert's ``b_right_half_turn`` option; a stage posed without an expert (``ex`` None) poses as the default."""
+    return ex is not None and ex.options.b_right_half_turn
+
+
 B_ABOVE = 0.05  # the hands come down to the touch start from this far above the object's top (m)
 
 
@@ -43,14 +48,14 @@ def b_preapproach(ex, w: World, poses, grip, ctx) -> Primitive:
     the hand then pressed on the top instead of squeezing the side."""
     top = w.table_height + w.size[2] + B_ABOVE
     motions = {}
-    for a, (p, R) in _b_targets(w, -0.04, right_half_turn=ex.options.b_right_half_turn).items():
+    for a, (p, R) in _b_targets(w, -0.04, right_half_turn=_right_half_turn(ex)).items():
         above = (vec(p[0], p[1], max(p[2], top)), R)
         motions[a] = ArmMotion(above, above, (B_OPEN, B_OPEN))
     return S_PREAPPROACH.make(motions)
 
 
 def b_touch(ex, w: World, poses, grip, ctx) -> Primitive:
-    turn = ex.options.b_right_half_turn
+    turn = _right_half_turn(ex)
     far, near = _b_targets(w, -0.04, right_half_turn=turn), _b_targets(w, 0.0, right_half_turn=turn)
     motions = {a: ArmMotion(far[a], near[a], (B_OPEN, B_OPEN)) for a in ARMS}
     return S_TOUCH.make(motions)
