@@ -239,6 +239,34 @@ def test_overfit_recipes_are_the_cpu_recipes_on_one_object(baseline, name):
                                repo_id=plain.repo_id, expert=plain.expert) == plain  # fmt: skip
 
 
+@pytest.mark.parametrize("baseline", ["flatlab_dp3", "act", "diffusion"])
+def test_cpu_half_turn_recipes_change_only_the_experts_option(baseline):
+    """policies/<id>/cpu_half_turn.json is cpu.json on baselines_cpu_half_turn's demos, and those demos
+    are baselines_cpu's (same seed, so the same placements) with only ``b_right_half_turn`` on: the
+    pair of rows measures the expert option and nothing else."""
+    import dataclasses
+
+    import draccus
+    from lerobot.configs.train import TrainPipelineConfig
+
+    from flatlab_lerobot.collect.recipe import load_recipe
+
+    path = REPO / "policies" / baseline / "cpu_half_turn.json"
+    cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=["--output_dir=/tmp/never_written"])
+    assert cfg.policy.type == baseline and cfg.policy.push_to_hub is False
+    cpu, turned = (json.loads((REPO / "policies" / baseline / f"{n}.json").read_text()) for n in ("cpu", "cpu_half_turn"))
+    assert turned["dataset"] == {**cpu["dataset"], "repo_id": "local/flatlab_baselines_cpu_half_turn",
+                                 "root": "outputs/datasets/baselines_cpu_half_turn"}  # fmt: skip
+    assert turned["output_dir"] == f"outputs/train/{baseline}_cpu_half_turn"
+    assert {k: v for k, v in turned.items() if k not in ("dataset", "output_dir")} == {
+        k: v for k, v in cpu.items() if k not in ("dataset", "output_dir")
+    }
+    demos, plain = load_recipe("baselines_cpu_half_turn"), load_recipe("baselines_cpu")
+    assert demos.expert.b_right_half_turn and not plain.expert.b_right_half_turn
+    assert dataclasses.replace(demos, name=plain.name, description=plain.description, source=plain.source,
+                               repo_id=plain.repo_id, expert=plain.expert) == plain  # fmt: skip
+
+
 def test_demo_recipes_record_no_privileged_state_and_fit_the_horizons():
     from flatlab_lerobot.catalog import load_objects
     from flatlab_lerobot.collect.recipe import load_recipe

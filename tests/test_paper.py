@@ -40,6 +40,9 @@ def test_presets_expand_into_a_consistent_registry(preset):
         rows = {(s.report["table"], s.report["row"]) for s in ctx.stages.values() if s.report.get("row")}
         for label, paper_row in R.T1_ROWS:
             assert ("grasp", label) in rows, label
+        # a Table 1 stage's row is the paper's or a listed variant (else table1 would drop it)
+        known = {label for label, _ in R.T1_ROWS + R.T1_VARIANT_ROWS}
+        assert {s.report["row"] for s in ctx.stages.values() if s.report.get("table") == "grasp"} <= known
         assert {("strategy", r) for r in R.GENERATOR_ROWS} <= rows
         assert {("executor", r) for r in R.EXECUTOR_ROWS} <= rows
         assert ("desk", "FlatLab") in rows and ("desk", "oracle") in rows

@@ -28,10 +28,16 @@ T1_ROWS = [  # (our row label, the paper's Table 1 row); superseded runs: table 
     ("FlatLab", "FlatLab"), ("FlatLab, observed contact", None), ("Slide (scripted)", "Slide"),
     ("Lift (scripted)", "Lift"), ("oracle", None),
 ]  # fmt: skip
+T1_VARIANT_ROWS = [  # rows a preset may add (a baseline on other demos), listed after the 3D Diffusion Policy row when it does
+    ("ACT, half-turn demos", None), ("Diffusion Policy, half-turn demos", "Diffusion Policy"),
+    ("3D Diffusion Policy, half-turn demos", "3D Diffusion Policy"),
+]  # fmt: skip
 ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripted)": "Slide, scripted (expert, always A)",
             "Lift (scripted)": "Lift, scripted (expert, always B)", "Slide": "Slide (flatlab_unified, strategy A)",
             "Lift": "Lift (flatlab_unified, strategy B)", "FlatLab": "FlatLab (flatlab_unified)",
             "ACT": "ACT (not in the paper)",
+            **{f"{m}, half-turn demos": f"{m} on half-turn demos (the expert's `b_right_half_turn`{'; not in the paper' if m == 'ACT' else ''})"
+               for m in ("ACT", "Diffusion Policy", "3D Diffusion Policy")},
             "FlatLab, observed contact": "FlatLab, A's and C's contacts from the observed cloud: heights, A's slide, C's squeeze "
                                          "and pinch, A's continuing stages from the hand, A's grasp on the seen side's arm, "
                                          "its pusher backed off, a seen sheet lifted its length + 8 cm, the pinch kept closed; "
@@ -194,7 +200,8 @@ def table1(ctx: Context, st: dict[str, Status]) -> list[str]:
              "| method | Train | paper | Test-α | paper | Test-β | paper | status | stage |",
              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     used = []
-    for label, paper_row in T1_ROWS:
+    at = T1_ROWS.index(("3D Diffusion Policy", "3D Diffusion Policy")) + 1
+    for label, paper_row in [*T1_ROWS[:at], *[r for r in T1_VARIANT_ROWS if r[0] in rows], *T1_ROWS[at:]]:
         name = rows.get(label)
         s = st.get(name) if name else None
         p = paper.get(paper_row) if paper_row else None
