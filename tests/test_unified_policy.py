@@ -377,8 +377,8 @@ def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, m
     _run_until_stage(pol, 5, 250)
     presses = [(log["index"], arm, float(prim.motions[arm].end[0][2]), log["heights"][arm])
                for prim, log, _ in posed if prim.name == "press" for arm in prim.motions]  # fmt: skip
-    first = {arm: z for index, arm, z, _ in presses if index < 4}
-    later = [(arm, z, h) for index, arm, z, h in presses if index >= 4 and arm in first]
+    first = {arm: z for index, arm, z, _ in presses if index < M.PASS_STAGES}
+    later = [(arm, z, h) for index, arm, z, h in presses if index >= M.PASS_STAGES and arm in first]
     assert first and later, presses
     for arm, z, h in later:
         if repeat:  # lowered to the first press, by the 2 cm it was above, and logged
