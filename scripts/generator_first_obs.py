@@ -1,5 +1,6 @@
 """The unified policy's strategy choice on the env's first observation, per object and seed, without running the
-episodes: column S of ``flatlab eval`` in about a minute per split instead of an evaluation.
+episodes: column S of ``flatlab eval`` in about a minute per split instead of an evaluation.  ``--policy`` may also be a
+``flatlab_strategy`` checkpoint (a generator alone, read as the unified policy reads it: ``--generator-cloud-points``).
 
     python scripts/generator_first_obs.py --policy outputs/paper/cpu/unified_cpu_two --splits train --seeds 1000-1004 \
         --image-size 128 --n-object-points 4096 --out outputs/s35/first_obs_train.json
@@ -23,7 +24,9 @@ from flatlab_lerobot.paper.desk import parse_seeds
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--policy", required=True, type=Path, help="flatlab_unified pretrained_model folder")
+    ap.add_argument("--policy", required=True, type=Path, help="flatlab_unified or flatlab_strategy pretrained_model folder")
+    ap.add_argument("--generator-cloud-points", type=int, default=2048,
+                    help="for a flatlab_strategy --policy: the unified policy's generator_cloud_points")
     ap.add_argument("--splits", default="train,test_alpha,test_beta")
     ap.add_argument("--objects", default="", help="comma-separated object ids instead of --splits")
     ap.add_argument("--seeds", default="1000-1004", help="episode seeds: '1000-1004', '1000,1003'")
@@ -42,15 +45,22 @@ def main(argv=None) -> int:
 
     import flatlab_lerobot.lerobot_plugin  # noqa: F401  registers the policy types
     from flatlab_lerobot.catalog import CatalogError, get_object
+    from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
     from flatlab_lerobot.policies.unified.modeling_flatlab_unified import FlatLabUnifiedPolicy
 
     if not (a.policy / "config.json").is_file():
-        raise SystemExit(f"--policy {a.policy}: no config.json (want a flatlab_unified pretrained_model folder)")
-    cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=[f"--generator_tta={a.generator_tta}"])
-    if cfg.type != "flatlab_unified":
-        raise SystemExit(f"--policy {a.policy}: config.json type is {cfg.type!r}, want 'flatlab_unified'")
-    policy = FlatLabUnifiedPolicy.from_pretrained(a.policy, config=cfg)
-    policy.eval()
+        raise SystemExit(f"--policy {a.policy}: no config.json (want a flatlab_unified or flatlab_strategy pretrained_model folder)")
+    kind = PreTrainedConfig.from_pretrained(a.policy).type
+    if kind == "flatlab_unified":
+        cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=[f"--generator_tta={a.generator_tta}"])
+        policy = FlatLabUnifiedPolicy.from_pretrained(a.policy, config=cfg).eval()
+        choose = policy.choose_strategy
+    elif kind == "flatlab_strategy":
+        gen = FlatLabStrategyPolicy.from_pretrained(a.policy).eval()
+        def choose(cloud):  # noqa: E306
+            return gen.rank_cloud(cloud, a.generator_cloud_points, a.generator_tta or None)[0]
+    else:
+        raise SystemExit(f"--policy {a.policy}: config.json type is {kind!r}, want 'flatlab_unified' or 'flatlab_strategy'")
     rows, t0 = [], time.perf_counter()
     if a.objects:
         try:
@@ -68,7 +78,7 @@ def main(argv=None) -> int:
                              image_size=a.image_size, n_points=a.n_points, n_object_points=a.n_object_points, obs_pixels=False)  # fmt: skip
             for seed in seeds:
                 obs, _ = env.reset(seed=seed)
-                chosen = policy.choose_strategy(obs["object_pointcloud"])
+                chosen = choose(obs["object_pointcloud"])
                 rows.append({"object_id": spec.id, "split": spec.split, "group": split, "category": spec.category, "label": spec.strategy,
                              "seed": seed, "strategy": chosen, "S": chosen == spec.strategy})  # fmt: skip
             env.close()

@@ -125,6 +125,39 @@ def test_cloud_normalization_invariance():
         assert torch.allclose(a, scaled, atol=1e-4) != use_scale
 
 
+def test_cloud_extents_measure_thickness_and_footprint_and_use_extent_feeds_them():
+    """cloud_extents: thickness (z range), then the footprint's long and short sides along its principal
+    axes, whatever the placement and the turn about z; with use_extent a thinner object of the same
+    outline gets other logits, without it only through the normalized shape."""
+    import math
+
+    from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import cloud_extents
+
+    rng = np.random.default_rng(0)
+    box = rng.uniform(0, 1, (1, 2000, 3)) * np.array([0.30, 0.20, 0.02])
+    box[0, :4] = [[0, 0, 0], [0.3, 0.2, 0.02], [0.3, 0, 0], [0, 0.2, 0.02]]  # the corners bound the ranges
+    box = torch.tensor(box, dtype=torch.float32)
+    ext = cloud_extents(box)[0]
+    assert torch.allclose(ext, torch.tensor([0.02, 0.30, 0.20]), atol=0.01), ext
+    c, s = math.cos(0.7), math.sin(0.7)
+    turn = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    moved = box @ turn.T + torch.tensor([0.1, -0.3, 0.75])
+    assert torch.allclose(cloud_extents(moved)[0], ext, atol=1e-3)
+    # the policy: placement-free; with use_extent a uniform rescaling moves the logits even without
+    # use_scale (the extents are metric), and the embedding reaches the head
+    for use_extent in (True, False):
+        policy = _policy(use_extent=use_extent, use_scale=False)
+        assert (policy.extent_embed is not None) == use_extent
+        a = policy.predict_logits({CLOUD_KEY: box})
+        assert torch.allclose(a, policy.predict_logits({CLOUD_KEY: box + torch.tensor([0.1, -0.3, 0.75])}), atol=1e-4)
+        assert torch.allclose(a, policy.predict_logits({CLOUD_KEY: box * 0.5}), atol=1e-4) != use_extent
+    with torch.no_grad():
+        policy = _policy(use_extent=True)
+        a = policy.predict_logits({CLOUD_KEY: box})
+        policy.extent_embed[0].bias += 1.0
+        assert not torch.allclose(a, policy.predict_logits({CLOUD_KEY: box}))
+
+
 def test_tta_averages_turned_subsets_and_one_pass_is_unchanged():
     """tta=1 is the single pass the checkpoints were selected with; tta=k averages the class probabilities
     of k passes, pass j on fixed subset j turned by 2*pi*j/k about z; a bad value names the flag."""
@@ -222,6 +255,9 @@ def test_ablation_recipes_differ_from_cpu_only_as_the_paper_says():
     assert set(diff("A3")) == {"dataset.root", "policy.contrast_weight"}
     assert diff("A7")["policy.input_key"] == "observation.images.object"
     assert diff("A8")["policy.input_key"] == "observation.scene_pointcloud"
+    ext = json.loads((REPO / "policies/flatlab_strategy/extra_a2_extent.json").read_text())
+    assert ext["policy"].pop("use_extent") is True  # A-2 plus the extents, nothing else
+    assert ext == json.loads((REPO / "policies/flatlab_strategy/ablation_A2.json").read_text())
 
 
 def test_export_refuses_test_objects(tmp_path):

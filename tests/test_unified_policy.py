@@ -526,6 +526,19 @@ def test_first_observation_script_gives_the_strategy_the_episode_chooses(tiny, t
     assert not np.array_equal(seen[0], seen[1])  # another seed, another placement
     with pytest.raises(SystemExit, match="--splits"):
         generator_first_obs.main(["--policy", str(tiny["artifact"]), "--splits", "nope"])
+    # the generator alone (its flatlab_strategy folder) is read as the artifact reads it: the same clouds, point
+    # count and passes reach FlatLabStrategyPolicy.rank_cloud, and the same choices come out
+    calls = []
+    orig_rank = FlatLabStrategyPolicy.rank_cloud
+    monkeypatch.setattr(FlatLabStrategyPolicy, "rank_cloud", lambda self, c, n=2048, tta=None: (calls.append((np.array(c), n, tta)), orig_rank(self, c, n, tta))[1])
+    assert generator_first_obs.main(args) == 0
+    gen_out = tmp_path / "gen.json"
+    args[1], args[-1] = str(tiny["generator"]), str(gen_out)
+    assert generator_first_obs.main(args + ["--generator-cloud-points", str(pol.config.generator_cloud_points)]) == 0
+    assert len(calls) == 6 and all(np.array_equal(calls[i][0], calls[3 + i][0]) and calls[i][1:] == calls[3 + i][1:] for i in range(3))
+    assert [r["strategy"] for r in json.loads(gen_out.read_text())["choices"]] == [r["strategy"] for r in choices]
+    with pytest.raises(SystemExit, match="want 'flatlab_unified' or 'flatlab_strategy'"):
+        generator_first_obs.main(["--policy", str(tiny["executor"])])
 
 
 @pytest.mark.parametrize("strategy", ["A", "B"])

@@ -10,6 +10,8 @@ The policy maps one observation to 3 strategy logits (A, B, C):
   not matter.  With ``use_scale`` (default) the radius of that sphere (the object's size in m) is
   embedded and appended to F: a uniform rescaling -- the paper's scale transformation -- gives the
   same unit-sphere cloud yet may change the label (A <-> B), so without it those labels conflict.
+  With ``use_extent`` (not in the paper; off by default) the drawn points' extents in m (vertical:
+  the thickness the side cameras see; horizontal: along the principal axes) are embedded too.
   Clouds must then be metric (the env's world-frame cloud; ``flatlab strategy-export`` writes
   centred metric clouds).  ``observation.environment_state``
   is never read; ``validate_features`` keeps ``input_key`` as the only input feature.
@@ -75,6 +77,7 @@ class FlatLabStrategyConfig(PreTrainedConfig):
     contrast_negatives: str = "same_object"
     group_size: int = 4  # frames of one episode per sample (1: no object groups)
     use_scale: bool = True  # also feed log(radius) of the cloud before normalization (its size in m)
+    use_extent: bool = False  # also feed log of its extents in m (thickness, length, width; not in the paper)
     augment_yaw: bool = True  # random rotation about the vertical axis in training (clouds only)
     augment_jitter: float = 0.0  # std of Gaussian point jitter in training (unit-sphere units)
     # inference passes averaged (test-time augmentation, clouds only): pass j draws the j-th fixed subset of

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
 
+from flatlab_lerobot.policies import distinct_indices, fps_indices, seen_points
 from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
 
 STRATEGY_LETTERS = ("A", "B", "C")
@@ -24,6 +26,21 @@ def normalize_cloud(cloud: Tensor, return_radius: bool = False):
     r = c.norm(dim=-1).amax(dim=-1, keepdim=True).clamp_min(1e-8)
     out = c / r.unsqueeze(-1)
     return (out, r.squeeze(-1)) if return_radius else out
+
+
+def cloud_extents(cloud: Tensor) -> Tensor:
+    """(B, N, 3) metric clouds (z up) -> (B, 3) extents in the cloud's units: the vertical one
+    (max z - min z: an object's thickness when the side cameras see its sides), then the
+    horizontal ones along the principal axes of the xy points, longest first.  Invariant to
+    translation and to turns about z."""
+    z = cloud[..., 2]
+    ez = z.amax(dim=1) - z.amin(dim=1)
+    xy = cloud[..., :2] - cloud[..., :2].mean(dim=1, keepdim=True)
+    cov = xy.transpose(1, 2) @ xy / xy.shape[1]
+    _, vec = torch.linalg.eigh(cov)  # ascending eigenvalues: column 1 is the long axis
+    proj = xy @ vec
+    ext = proj.amax(dim=1) - proj.amin(dim=1)  # (B, 2): short, long
+    return torch.stack([ez, ext[:, 1], ext[:, 0]], dim=1)
 
 
 class PointNetEncoder(nn.Module):
@@ -96,6 +113,10 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         if config.use_scale and not config.is_image:
             self.scale_embed = nn.Sequential(nn.Linear(1, 16), nn.ReLU(inplace=True))
             d += 16
+        self.extent_embed = None
+        if config.use_extent and not config.is_image:
+            self.extent_embed = nn.Sequential(nn.Linear(3, 16), nn.ReLU(inplace=True))
+            d += 16
         self.head = nn.Sequential(
             nn.Linear(d, config.head_hidden), nn.ReLU(inplace=True), nn.Dropout(config.dropout),
             nn.Linear(config.head_hidden, len(STRATEGY_LETTERS)),
@@ -118,13 +139,14 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return list(self._strategies)
 
     # ------------------------------------------------------------------ inputs
-    def _prepare(self, x: Tensor, train: bool, tta_pass: int = 0, tta: int = 1) -> tuple[Tensor, Tensor | None]:
+    def _prepare(self, x: Tensor, train: bool, tta_pass: int = 0, tta: int = 1):
         """A batch of one input (B, N, C>=3) cloud or (B, 3, H, W) image -> (the encoder's input,
-        the cloud's radius before normalization (B,) or None).  At inference, pass ``tta_pass`` of ``tta``
+        the cloud's radius before normalization (B,) or None, its extents (B, 3) (:func:`cloud_extents`
+        of the drawn points) with ``use_extent``, else None).  At inference, pass ``tta_pass`` of ``tta``
         draws fixed subset ``tta_pass`` and turns the cloud by 2*pi*tta_pass/tta about z (config ``tta``)."""
         cfg = self.config
         if cfg.is_image:
-            return x.float(), None
+            return x.float(), None, None
         x = x[..., :3].float()  # colour-free
         n = x.shape[1]
         if train:
@@ -137,6 +159,7 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             idx = torch.randperm(n, generator=g)[: cfg.n_points] if n >= cfg.n_points else (
                 torch.randint(0, n, (cfg.n_points,), generator=g))  # fmt: skip
             x = x[:, idx.to(x.device)]
+        extents = cloud_extents(x) if cfg.use_extent else None
         x, radius = normalize_cloud(x, return_radius=True)
         turn = None
         if train and cfg.augment_yaw:
@@ -150,7 +173,7 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
             x = torch.cat([xy, x[..., 2:]], dim=-1)
         if train and cfg.augment_jitter > 0:
             x = x + cfg.augment_jitter * torch.randn_like(x)
-        return x, radius
+        return x, radius, extents
 
     def _input(self, batch: dict[str, Tensor]) -> Tensor:
         key = self.config.input_key
@@ -161,11 +184,14 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
     def features(self, x: Tensor, train: bool = False, tta_pass: int = 0, tta: int = 1) -> Tensor:
         """F: the encoder's global feature, with the embedded log-radius (metres) of the cloud
         when ``use_scale`` (the unit-sphere normalization removes the object's size, which
-        decides A vs B for a rescaled object)."""
-        x, radius = self._prepare(x, train, tta_pass, tta)
+        decides A vs B for a rescaled object), and with ``use_extent`` the embedded log-extents
+        (metres) of the drawn points: thickness, length, width."""
+        x, radius, extents = self._prepare(x, train, tta_pass, tta)
         f = self.encoder(x)
         if self.scale_embed is not None:
             f = torch.cat([f, self.scale_embed(torch.log(radius)[:, None])], dim=1)
+        if self.extent_embed is not None:
+            f = torch.cat([f, self.extent_embed(torch.log(extents.clamp_min(1e-3)))], dim=1)
         return f
 
     # ------------------------------------------------------------------ inference
@@ -188,6 +214,24 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         logits = self.predict_logits(batch, tta)
         self._strategies = [STRATEGY_LETTERS[int(i)] for i in logits.argmax(dim=1)]
         return self.strategies
+
+    @torch.no_grad()
+    def rank_cloud(self, object_cloud: np.ndarray, cloud_points: int = 2048, tta: int | None = None) -> list[str]:
+        """The strategies (A/B/C), most probable first, for one env object cloud (K, 3) read as: its
+        distinct seen points (the env pads a cloud it sees fewer points of by repeating them, and fills an
+        unseen one with zeros), farthest-point sampled to ``cloud_points`` (0: all) when there are more, as
+        the strategy set's clouds are FPS samples of the object's pixels.  The repeats would shift the
+        cloud's mean, the centre of the normalization (at 128 px, Train S 73 % with them, 97 % without:
+        docs/unified.md)."""
+        dev = next(self.parameters()).device
+        pts, seen = np.asarray(object_cloud, np.float64).reshape(-1, 3), seen_points(object_cloud)
+        if len(seen):
+            pts = seen[distinct_indices(seen)]
+        if cloud_points and len(pts) > cloud_points:
+            pts = pts[fps_indices(pts, cloud_points)]
+        x = torch.as_tensor(pts, dtype=torch.float32, device=dev)[None]
+        logits = self.predict_logits({self.config.input_key: x}, tta=tta)[0]
+        return [STRATEGY_LETTERS[int(i)] for i in torch.argsort(logits, descending=True, stable=True)]
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:

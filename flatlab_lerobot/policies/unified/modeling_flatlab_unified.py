@@ -49,10 +49,10 @@ from lerobot.utils.constants import OBS_STATE
 from torch import Tensor, nn
 
 from flatlab_lerobot.lerobot_env import OBS_CELL, OBS_OBJECT_POINTCLOUD, OBS_POINTCLOUD
-from flatlab_lerobot.policies import distinct_indices, fps_indices, seen_points
+from flatlab_lerobot.policies import seen_points
 from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
-from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import STRATEGY_LETTERS, FlatLabStrategyPolicy
-from flatlab_lerobot.policies.unified.configuration_flatlab_unified import GENERATOR_INPUT, FlatLabUnifiedConfig
+from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
+from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
     GRIP_CLOSED_STRATEGIES,
     MIN_POINTS,
@@ -593,22 +593,9 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def rank_strategies(self, object_cloud: np.ndarray) -> list[str]:
-        """The generator's strategies (A/B/C), most probable first, for one object cloud (K, 3) read as: its
-        distinct seen points (the env pads
-        a cloud it sees fewer points of by repeating them, and fills an unseen one with zeros), farthest-point
-        sampled to ``generator_cloud_points`` when there are more, as the strategy set's clouds are FPS
-        samples of the object's pixels.  The repeats would shift the cloud's mean, the centre of the
-        generator's normalization (at 128 px, Train S 73 % with them, 97 % without: docs/unified.md)."""
-        dev = next(self.generator.parameters()).device
-        pts, seen = np.asarray(object_cloud, np.float64).reshape(-1, 3), seen_points(object_cloud)
-        if len(seen):
-            pts = seen[distinct_indices(seen)]
-        n = self.config.generator_cloud_points
-        if n and len(pts) > n:
-            pts = pts[fps_indices(pts, n)]
-        x = torch.as_tensor(pts, dtype=torch.float32, device=dev)[None]
-        logits = self.generator.predict_logits({GENERATOR_INPUT: x}, tta=self.config.generator_tta or None)[0]
-        return [STRATEGY_LETTERS[int(i)] for i in torch.argsort(logits, descending=True, stable=True)]
+        """The generator's strategies (A/B/C), most probable first, for one object cloud (K, 3):
+        :meth:`FlatLabStrategyPolicy.rank_cloud` with ``generator_cloud_points`` and ``generator_tta``."""
+        return self.generator.rank_cloud(object_cloud, self.config.generator_cloud_points, self.config.generator_tta or None)
 
     @staticmethod
     def observed(batch: dict[str, Tensor]) -> list[Observed]:
