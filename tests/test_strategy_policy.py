@@ -127,8 +127,8 @@ def test_cloud_normalization_invariance():
 
 def test_cloud_extents_measure_thickness_and_footprint_and_use_extent_feeds_them():
     """cloud_extents: thickness (z range), then the footprint's long and short sides along its principal
-    axes, whatever the placement and the turn about z; with use_extent a thinner object of the same
-    outline gets other logits, without it only through the normalized shape."""
+    axes, whatever the placement and the turn about z; with use_extent (and without use_scale) a uniform
+    rescaling changes the logits, which it cannot without it, and the extents' embedding reaches the head."""
     import math
 
     from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import cloud_extents

@@ -139,7 +139,9 @@ class FlatLabStrategyPolicy(PreTrainedPolicy):
         return list(self._strategies)
 
     # ------------------------------------------------------------------ inputs
-    def _prepare(self, x: Tensor, train: bool, tta_pass: int = 0, tta: int = 1):
+    def _prepare(
+        self, x: Tensor, train: bool, tta_pass: int = 0, tta: int = 1
+    ) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """A batch of one input (B, N, C>=3) cloud or (B, 3, H, W) image -> (the encoder's input,
         the cloud's radius before normalization (B,) or None, its extents (B, 3) (:func:`cloud_extents`
         of the drawn points) with ``use_extent``, else None).  At inference, pass ``tta_pass`` of ``tta``
