@@ -220,6 +220,29 @@ def test_forward_masks_padding_and_learns_groups():
     assert all(p.grad is not None for p in policy.encoder.parameters())
 
 
+def test_one_frame_episodes_train_the_same_with_group_size_1():
+    """The paper preset's A-2 / A-3 train on originals-only exports (one cloud per episode) with
+    ``group_size=1``: a group of 4 there is the cloud plus 3 pads the loss drops, so both load paths
+    give the same loss and gradients, and size 1 loads a quarter of the clouds."""
+    torch.manual_seed(1)
+    x, labels = torch.randn(6, 128, 3), torch.tensor([0, 1, 2, 0, 1, 2])
+    objects = torch.arange(6)
+    pad = torch.tensor([[False, True, True, True]] * 6)
+    grouped = {CLOUD_KEY: x[:, None].expand(6, 4, 128, 3).clone(), "action": torch.eye(3)[labels][:, None].expand(6, 4, 3),
+               f"{CLOUD_KEY}_is_pad": pad, "object_index": objects[:, None]}  # fmt: skip
+    single = {CLOUD_KEY: x.clone(), "action": torch.eye(3)[labels], "object_index": objects[:, None]}
+    results = []
+    for kw, batch in (({"group_size": 4}, grouped), ({"group_size": 1}, single)):
+        policy = _policy(**kw).train()
+        torch.manual_seed(2)  # the same augmentation draws
+        loss, info = policy.forward(batch)
+        loss.backward()
+        results.append((loss.detach(), info["nt_xent"], [p.grad.clone() for p in policy.encoder.parameters()]))
+    (l4, c4, g4), (l1, c1, g1) = results
+    assert torch.allclose(l4, l1) and c4 == c1
+    assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(g4, g1, strict=True))
+
+
 @pytest.mark.parametrize("recipe", RECIPES, ids=lambda p: p.stem)
 def test_recipes_parse_as_lerobot_train_configs(recipe):
     import draccus
