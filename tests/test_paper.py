@@ -112,13 +112,14 @@ def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
     assert st["eval_slide"].state == "blocked" and st["eval_slide"].reason.startswith("unified_cpu:")
     monkeypatch.setattr(P, "_CUDA", [False])
     paper = P.statuses(ctx_for("paper"))
-    a3 = paper["strategy_train_ablation_A3"]  # not run on a GPU yet
-    assert a3.state == "blocked" and a3.reason == "needs GPU"
-    assert paper["strategy_ablation_A3"].reason == "strategy_train_ablation_A3: needs GPU"
+    ex = paper["executor_train_paper"]  # not run on a GPU yet
+    assert ex.state == "blocked" and ex.reason == "needs GPU"
+    assert paper["executor_paper"].reason == "executor_train_paper: needs GPU"
     assert paper["primitive_set_train"].state == "missing"  # learning sets need no GPU
     # a training recorded on a GPU machine (scripts/device_paper.sh) is done here, and so are its users' inputs
     for train, metrics in (("strategy_train_paper", "strategy_paper"), ("strategy_train_ablation_A1", "strategy_ablation_A1"),
-                           ("strategy_train_ablation_A8", "strategy_ablation_A8")):
+                           ("strategy_train_ablation_A8", "strategy_ablation_A8"),
+                           ("strategy_train_ablation_A3", "strategy_ablation_A3")):
         assert paper[train].state == "done" and paper[metrics].state == "done"
     with pytest.raises(P.PaperError, match="unknown need"):
         P.unmet("tpu")
