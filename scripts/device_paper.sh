@@ -96,7 +96,7 @@ while :; do
   while [ ${#queue[@]} -gt 0 ] && [ ${#pid[@]} -lt $PARALLEL ]; do
     s=${queue[0]}; queue=("${queue[@]:1}")
     if [ $first -gt 0 ] && [ $(( deadline - now )) -lt $(( first * 12 / 10 )) ]; then echo "[$s] not started: $(( deadline - now )) s left"; continue; fi
-    setsid python3 -m flatlab_lerobot.cli paper --preset paper --only "$s" --no-render >"$LOGS/$s.log" 2>&1 &
+    setsid python3 -m flatlab_lerobot.cli paper --preset paper --only "$s" --no-render >>"$LOGS/$s.log" 2>&1 &
     pid[$s]=$!; start[$s]=$now; echo "[$s] started"
   done
   [ ${#pid[@]} = 0 ] && break

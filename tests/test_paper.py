@@ -3,7 +3,9 @@ against the committed results, the README headline, and the whole pipeline on th
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -249,7 +251,7 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
         assert after[key] == before[key], key
     assert R.tables(P.context("tiny", out, res)) == first
     # an interrupted evaluation resumes after its saved trials (a half-written last line dropped), gives the same
-    # numbers, and its record and the runs table say that its wall time is the resumed part's
+    # numbers, and its record sums the wall times of its runs (the earlier one from the stage's log)
     rec_path, jsonl = res / "tiny" / "eval_oracle.json", ctx.out("eval_oracle") / "results.jsonl"
     whole, lines = json.loads(rec_path.read_text()), jsonl.read_text().splitlines(keepends=True)
     assert len(lines) == 2
@@ -259,9 +261,31 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     resumed = json.loads(rec_path.read_text())
     assert resumed["paper_stage"]["resumed"] == {"trials_before": 1, "trials_this_run": 1}
     assert resumed["per_object"] == whole["per_object"] and resumed["per_split"] == whole["per_split"]
+    segments = resumed["paper_stage"]["wall_s_segments"]
+    assert len(segments) == 2 and segments[0] == whole["paper_stage"]["wall_s"]
+    assert resumed["paper_stage"]["wall_s"] == pytest.approx(sum(segments), abs=0.11)
+    log = ctx.log_path("eval_oracle").read_text()
+    assert log.count("# segment started ") == 2 and log.count("# segment ended ") == 2
     ctx = P.context("tiny", out, res)
     row = next(line for line in R.runs_table(ctx, P.statuses(ctx)).splitlines() if line.startswith("| `eval_oracle` |"))
-    assert "(resumed: 1 of 2 trials)" in row
+    assert "(2 runs)" in row
+
+
+def test_a_killed_run_ends_at_its_logs_last_write_and_a_resume_adds_it(tmp_path):
+    """A stage killed mid-run (the GPU machine's deadline) wrote no end to its log; the run that resumes it
+    closes that segment at the log's last write and counts it in the stage's wall time."""
+    log = tmp_path / "stage.log"
+    assert P._earlier_segments(log) == []
+    log.write_text("$ lerobot-train ...\nstep:10 loss:1.0\n")  # a log from before the segment markers
+    assert P._earlier_segments(log) == []
+    log.write_text("# segment started 2026-12-04T10:00:00+00:00\n$ lerobot-train ...\n\n"
+                   "# segment ended 2026-12-04T10:01:40+00:00 after 100.0 s (exit 0)\n"
+                   "# segment started 2026-12-04T11:00:00+00:00\n$ lerobot-train --resume=true\nstep:20 loss:0.5\n")  # fmt: skip
+    killed_at = _dt.datetime(2026, 12, 4, 11, 4, 10, tzinfo=_dt.timezone.utc).timestamp()
+    os.utime(log, (killed_at, killed_at))
+    assert P._earlier_segments(log) == [100.0, 250.0]
+    assert "after 250.0 s (interrupted: no exit written)" in log.read_text()
+    assert P._earlier_segments(log) == [100.0, 250.0]  # closed once
 
 
 def test_git_commit_of_a_tree_copy_comes_from_the_environment(monkeypatch):

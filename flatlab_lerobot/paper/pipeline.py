@@ -443,6 +443,38 @@ def _resume_train(ctx: Context, st: Stage, cmd: list[str]) -> list[str]:
     return cmd
 
 
+SEGMENT_START = "# segment started "
+SEGMENT_STARTED = re.compile(r"^# segment started (\S+)$", re.M)
+SEGMENT_END = re.compile(r"^# segment ended \S+ after ([\d.]+) s", re.M)
+
+
+def _utc(t: float | None = None) -> str:
+    t = time.time() if t is None else t
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _earlier_segments(log: Path) -> list[float]:
+    """Wall times (s) of the earlier runs of a stage this run resumes, from its log: each run writes
+    '# segment started <UTC>' and, when it returns, '# segment ended <UTC> after <s> s'. A run that was
+    killed wrote no end: it ended at the log's last write (lerobot-train and flatlab eval write progress
+    all along), and that end is appended now. A log from before the markers gives none."""
+    if not log.is_file():
+        return []
+    text = log.read_text(errors="replace")
+    starts = list(SEGMENT_STARTED.finditer(text))
+    if starts and not SEGMENT_END.search(text, starts[-1].end()):
+        try:
+            t0 = _dt.datetime.fromisoformat(starts[-1][1]).timestamp()
+        except ValueError:
+            t0 = None
+        if t0 is not None:
+            end = log.stat().st_mtime
+            with open(log, "a") as f:
+                f.write(f"\n# segment ended {_utc(end)} after {max(0.0, end - t0):.1f} s (interrupted: no exit written)\n")
+            text = log.read_text(errors="replace")
+    return [float(w) for w in SEGMENT_END.findall(text)]
+
+
 def _trials_saved(out: Path) -> int:
     """Finished trials an evaluation's ``results.jsonl`` holds, as ``flatlab eval`` counts them when it resumes."""
     from flatlab_lerobot.evaluation.protocol import saved_trials  # the eval's own bookkeeping (lazy: heavy imports)
@@ -498,14 +530,17 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
     cmd = _expand_subcommands(ctx, st, cmd, env)
     log = ctx.log_path(st.name)
     log.parent.mkdir(parents=True, exist_ok=True)
-    created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    created = _utc()
     before = _trials_saved(out) if st.kind == "eval" else 0  # an interrupted run's trials: this run resumes after them
+    resuming = before > 0 or (st.kind == "train" and "--resume=true" in cmd)
+    earlier = _earlier_segments(log) if resuming else []  # the log keeps every run of a resumed stage
     t0 = time.perf_counter()
-    with open(log, "w") as f:
-        f.write(f"$ {shlex.join(cmd)}\n")
+    with open(log, "a" if resuming else "w") as f:
+        f.write(f"{SEGMENT_START}{created}\n$ {shlex.join(cmd)}\n")
         f.flush()
         r = subprocess.run(cmd, cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT)
-    wall = round(time.perf_counter() - t0, 1)
+        wall = round(time.perf_counter() - t0, 1)
+        f.write(f"\n# segment ended {_utc()} after {wall} s (exit {r.returncode})\n")
     if r.returncode != 0:
         tail = "\n".join(log.read_text().splitlines()[-25:])
         raise PaperError(f"stage {st.name} failed (exit {r.returncode}, {wall} s); log {log}:\n{tail}")
@@ -519,10 +554,12 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
         "stage": st.name, "kind": st.kind, "preset": ctx.preset["name"], "what": st.what,
         "command": display(ctx, st), "command_run": shlex.join(cmd), "fingerprint": fp,
         "inputs": {i: fps[i] for i in st.inputs}, "seeds": _seeds(st.cmd), "env": ctx.preset["env"],
-        "git": git_commit(), "wall_s": wall, "machine": machine(), "device": device(), "created": created,
-        "output": f"$OUT/{st.name}",
+        "git": git_commit(), "wall_s": round(wall + sum(earlier), 1), "machine": machine(), "device": device(),
+        "created": created, "output": f"$OUT/{st.name}",
     }  # fmt: skip
-    if before:  # wall_s covers this run's trials only
+    if earlier:  # a resumed stage: wall_s sums its runs (the earlier ones from its log)
+        rec["paper_stage"]["wall_s_segments"] = [*earlier, wall]
+    if before:  # without earlier segments in the log, wall_s covers this run's trials only
         rec["paper_stage"]["resumed"] = {"trials_before": before, "trials_this_run": _trials_saved(out) - before}
     write_json(ctx.record_path(st.name), rec)
     return rec

@@ -119,7 +119,7 @@ def provenance(rec: dict | None) -> dict:
         mach = m["machine"]
         return {"command": m["command"], "wall_s": m["wall_s"], "machine": f"{mach['cpu_count']} × {mach['cpu_model']}",
                 "device": m["device"], "commit": (m["git"].get("commit") or "")[:7], "created": m["created"],
-                "pipeline": True, "resumed": m.get("resumed")}  # fmt: skip
+                "pipeline": True, "resumed": m.get("resumed"), "segments": m.get("wall_s_segments")}  # fmt: skip
     cmds = rec.get("commands") or ([rec["command"]] if isinstance(rec.get("command"), str) else [])
     if isinstance(rec.get("commands"), dict):
         cmds = list(rec["commands"].values())
@@ -454,8 +454,9 @@ def runs_table(ctx: Context, st: dict[str, Status]) -> str:
     """Wall time, machine, device and commit per stage; totals per kind and for the preset."""
     lines = ["## Runs: wall time per stage", "",
              "Measured records only; an earlier run's file gives one wall time for its whole chain (training + "
-             "evaluation; the executor's: training + metrics, its primitive sets counted once below); an evaluation that "
-             "resumed an interrupted one gives the wall time of the trials it ran (marked resumed). `$OUT` = "
+             "evaluation; the executor's: training + metrics, its primitive sets counted once below); a stage that "
+             "resumed an interrupted run sums its runs (marked with their number); one resumed before stop 60 gives the "
+             "wall time of the trials it ran (marked resumed). `$OUT` = "
              f"`outputs/paper/{ctx.preset['name']}`, `$RESULTS` = `docs/results`.", "",
              "| stage | kind | status | wall (s) | machine | device | commit | created |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     totals: dict[str, float] = {}
@@ -477,7 +478,9 @@ def runs_table(ctx: Context, st: dict[str, Status]) -> str:
                 totals["learning-set"] = totals.get("learning-set", 0) + w
                 shared_note.append(f"`{name}`'s primitive sets: {w:.0f} s (counted once)")
         cell = "–" if wall is None else f"{wall:.0f}"
-        if wall is not None and p.get("resumed"):  # the run resumed an interrupted one: its wall is its own trials'
+        if wall is not None and p.get("segments"):  # a resumed stage whose log held its earlier runs: their sum
+            cell += f" ({len(p['segments'])} runs)"
+        elif wall is not None and p.get("resumed"):  # the run resumed an interrupted one: its wall is its own trials'
             r = p["resumed"]
             cell += f" (resumed: {r['trials_this_run']} of {r['trials_before'] + r['trials_this_run']} trials)"
         lines.append(f"| `{name}` | {stage.kind} | {_state(s)} | {cell} | {p['machine']} | "
