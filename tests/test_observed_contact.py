@@ -276,8 +276,9 @@ def test_continued_slide_can_stay_level_and_press_go_deeper():
     assert b[2] == pytest.approx(hand[2]) and b[:2] - a[:2] == pytest.approx((p1 - p0)[:2])
     (a, _), (b, _) = continued_motion(p0, R, p1, R, hand, R, deeper=0.004)
     assert a == pytest.approx(hand) and b - a == pytest.approx(p1 - p0 - [0, 0, 0.004])
-    with pytest.raises(ValueError, match="continue_level_slide / --policy.continue_press_deeper need"):
-        FlatLabUnifiedConfig(continue_level_slide=True)
+    for flag in ("continue_level_slide", "continue_level_squeeze"):
+        with pytest.raises(ValueError, match="continue_level_squeeze need --policy.continue_from_hand"):
+            FlatLabUnifiedConfig(**{flag: True})
     with pytest.raises(ValueError, match="continue_press_deeper: metres in"):
         FlatLabUnifiedConfig(continue_from_hand="A", continue_press_deeper=-0.001)
 

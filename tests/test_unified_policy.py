@@ -181,7 +181,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "A", "contact": "observed", "contact_from_hand": "true", "contact_a_grasp": "true",
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_level_slide": "true", "continue_press_deeper": "0.004",
-      "max_push_passes": "1"}],
+      "max_push_passes": "1"},
+     {"strategy": "C", "continue_from_hand": "AC", "continue_level_squeeze": "true"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -220,7 +221,10 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
             assert all(h.get("line") for h in pre.values())
     if overrides.get("contact_b_face"):  # B's touch was moved to the seen faces
         assert all("b_face" in h for h in touch[0]["heights"].values())
-    if c:  # the squeeze was stretched to the seen centre, the pinching hand came down at the table
+    if overrides.get("continue_level_squeeze"):  # C's squeeze continued from the hand, level
+        squeeze = [d for d in pols[0].decisions[0] if d.get("primitive") == "squeeze" and d.get("arms")]
+        assert squeeze and all(h == {"from_hand": True, "level": True} for h in squeeze[0]["heights"].values())
+    if c and overrides.get("contact") == "observed":  # the squeeze stretched to the seen centre, the pinch at the table
         assert any("squeeze" in h for d in posed for h in d["heights"].values())
         press = [d for d in posed if d["primitive"] == "press"]
         assert press, [d.get("primitive") for d in pols[0].decisions[0]]
@@ -355,6 +359,18 @@ def test_contact_from_hand_moves_the_pressing_hand_only_along_its_motion(tiny, f
         logged = [e for e in pol.decisions[0] if 1 <= e.get("index", -1) <= 3 and e.get("arms")]
         assert {e["index"] for e in logged} == {1, 2, 3}, logged
         assert all(e["heights"][a] == want[e["index"]] for e in logged for a in e["arms"]), logged
+
+
+def test_continue_level_squeeze_keeps_cs_continued_squeeze_at_the_hands_height(tiny):
+    """continue_level_squeeze: C's squeeze, continued from the hand, is logged level (the learned descent dropped);
+    the release after it continues from the hand as learned."""
+    pol = _load(tiny["artifact"], strategy="C", continue_from_hand="C", continue_level_squeeze="true")
+    seq = _run_until_stage(pol, 2, 200)
+    assert {"squeeze", "release"} <= {stage for _, stage in seq}, seq
+    logged = {e["index"]: e for e in pol.decisions[0] if e.get("arms") and e.get("index") in (1, 2)}
+    assert logged[1]["primitive"] == "squeeze" and logged[2]["primitive"] == "release", logged
+    assert all(logged[1]["heights"][a] == {"from_hand": True, "level": True} for a in logged[1]["arms"]), logged
+    assert all(logged[2]["heights"][a] == {"from_hand": True} for a in logged[2]["arms"]), logged
 
 
 @pytest.mark.parametrize("repeat", [False, True])

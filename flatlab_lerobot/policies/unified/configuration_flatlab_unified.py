@@ -162,6 +162,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with continue_from_hand: a slide continued from the hand keeps the hand's height (the learned
     # displacement's vertical part dropped), as the expert's slide along the table is level in every demo
     continue_level_slide: bool = False
+    # with continue_from_hand: a squeeze continued from the hand (C's; B is not continued) keeps the hand's
+    # height, as the expert's squeeze is level in every demo (dz = 0 in all 154 C arm-samples of the Train
+    # primitive set); a learned 6 mm descent pinned the fingers to the table (shorts_sport seed 1000, stop 60)
+    continue_level_squeeze: bool = False
     # with continue_from_hand: a press continued from the hand ends this much (m) lower than learned, so the
     # hand presses into a thin object instead of resting a few mm above it (>= 0)
     continue_press_deeper: float = 0.0
@@ -242,8 +246,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_press_repeat=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
-        if (self.continue_level_slide or self.continue_press_deeper) and not self.continue_from_hand:
-            raise ValueError("--policy.continue_level_slide / --policy.continue_press_deeper need "
+        continued = self.continue_level_slide or self.continue_press_deeper or self.continue_level_squeeze
+        if continued and not self.continue_from_hand:
+            raise ValueError("--policy.continue_level_slide / --policy.continue_press_deeper / "
+                             "--policy.continue_level_squeeze need "
                              "--policy.continue_from_hand (the stages they change start at the hand)")
         if not 0.0 <= self.continue_press_deeper <= 0.02:
             raise ValueError(f"--policy.continue_press_deeper: metres in [0, 0.02], got {self.continue_press_deeper}")

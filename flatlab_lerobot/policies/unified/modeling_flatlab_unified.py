@@ -433,7 +433,8 @@ class _Episode:
                     duration = max(duration, spec.transit)
             elif continued:  # continue_from_hand: from the commanded hand, by the learned displacement and turn
                 cfg = self.policy.config
-                level = cfg.continue_level_slide and spec.primitive == "slide"
+                level = (cfg.continue_level_slide and spec.primitive == "slide") or (
+                    cfg.continue_level_squeeze and spec.primitive == "squeeze")
                 deeper = cfg.continue_press_deeper if spec.primitive == "press" else 0.0
                 (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a], level=level, deeper=deeper)
                 heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}

@@ -435,8 +435,8 @@ def continued_motion(p0: np.ndarray, R0: np.ndarray, p1: np.ndarray, R1: np.ndar
     """``continue_from_hand`` (contact=learned): the learned motion ``(p0, R0) -> (p1, R1)`` moved to start at
     the commanded hand ``(hand, R_hand)``: the same displacement ``p1 - p0`` and the same turn ``R1 R0^T``
     (world frame, :func:`turned_from_hand`), so the runner needs no transit to the start.  ``level`` (a
-    slide, ``continue_level_slide``): the displacement's vertical part is dropped, the hand slides at its
-    height as a slide along the table does (the expert's is level in every demo); ``deeper`` (a press,
+    slide, ``continue_level_slide``; a squeeze, ``continue_level_squeeze``): the displacement's vertical part
+    is dropped, the hand moves at its height as the expert's slide and squeeze do in every demo; ``deeper`` (a press,
     ``continue_press_deeper``): the press ends that much lower than learned.  Reads no cloud:
     proprioception only."""
     here = np.asarray(hand, float)
