@@ -164,8 +164,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     continue_level_slide: bool = False
     # with continue_from_hand: a squeeze continued from the hand (C's; B is not continued) keeps the hand's
     # height, as the expert's squeeze is level in every demo (dz = 0 in all 154 C arm-samples of the Train
-    # primitive set). Measured on the Train C objects (stop 60): 10 -> 11 of 20, 4 won / 3 lost: not adopted, the
-    # squeeze works inside a height window a few mm wide (docs/unified.md)
+    # primitive set). Measured on the Train C objects (stop 60): 10 -> 11 of 20, 4 won / 3 lost: not adopted
+    # (docs/unified.md)
     continue_level_squeeze: bool = False
     # with continue_from_hand: a press continued from the hand ends this much (m) lower than learned, so the
     # hand presses into a thin object instead of resting a few mm above it (>= 0)
