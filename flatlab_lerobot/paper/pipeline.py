@@ -444,13 +444,18 @@ def _resume_train(ctx: Context, st: Stage, cmd: list[str]) -> list[str]:
 
 
 SEGMENT_START = "# segment started "
-SEGMENT_STARTED = re.compile(r"^# segment started (\S+)$", re.M)
+SEGMENT_STARTED = re.compile(rf"^{re.escape(SEGMENT_START)}(\S+)$", re.M)
 SEGMENT_END = re.compile(r"^# segment ended \S+ after ([\d.]+) s", re.M)
 
 
 def _utc(t: float | None = None) -> str:
     t = time.time() if t is None else t
     return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _segment_end(wall: float, why: str, t: float | None = None) -> str:
+    """The log line that closes a run of a stage (read back by ``SEGMENT_END``)."""
+    return f"\n# segment ended {_utc(t)} after {wall:.1f} s ({why})\n"
 
 
 def _earlier_segments(log: Path) -> list[float]:
@@ -461,18 +466,19 @@ def _earlier_segments(log: Path) -> list[float]:
     if not log.is_file():
         return []
     text = log.read_text(errors="replace")
+    walls = [float(w) for w in SEGMENT_END.findall(text)]
     starts = list(SEGMENT_STARTED.finditer(text))
     if starts and not SEGMENT_END.search(text, starts[-1].end()):
         try:
             t0 = _dt.datetime.fromisoformat(starts[-1][1]).timestamp()
         except ValueError:
-            t0 = None
-        if t0 is not None:
-            end = log.stat().st_mtime
-            with open(log, "a") as f:
-                f.write(f"\n# segment ended {_utc(end)} after {max(0.0, end - t0):.1f} s (interrupted: no exit written)\n")
-            text = log.read_text(errors="replace")
-    return [float(w) for w in SEGMENT_END.findall(text)]
+            return walls
+        end = log.stat().st_mtime
+        wall = round(max(0.0, end - t0), 1)
+        with open(log, "a") as f:
+            f.write(_segment_end(wall, "interrupted: no exit written", end))
+        walls.append(wall)
+    return walls
 
 
 def _trials_saved(out: Path) -> int:
@@ -540,7 +546,7 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
         f.flush()
         r = subprocess.run(cmd, cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT)
         wall = round(time.perf_counter() - t0, 1)
-        f.write(f"\n# segment ended {_utc()} after {wall} s (exit {r.returncode})\n")
+        f.write(_segment_end(wall, f"exit {r.returncode}"))
     if r.returncode != 0:
         tail = "\n".join(log.read_text().splitlines()[-25:])
         raise PaperError(f"stage {st.name} failed (exit {r.returncode}, {wall} s); log {log}:\n{tail}")
