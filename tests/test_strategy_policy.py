@@ -41,12 +41,12 @@ def _cloud(strategy: str, rng, n: int, scale: float) -> np.ndarray:
     return S.normalize(p)[0]
 
 
-def synthetic_set(out: Path, objects=None, views: int = 3, n: int = 128, split_override=None) -> Path:
+def synthetic_set(out: Path, objects=None, views: int = 3, n: int = 128, split_override=None, seed: int = 0) -> Path:
     """A strategy set in the real file format with real catalog ids, without simulation: per
     object 2 variants per view (the original and one 'scale' variant whose strategy differs for
     the cloth: its rigid counterpart)."""
     objects = objects or ["book_a5_notebook", "box_gift", "mousepad_standard", "fabric_cotton"]
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     clouds, rows = [], []
     for oid in objects:
         o = OBJECTS[oid]
@@ -380,6 +380,28 @@ def test_lerobot_train_cli_trains_and_checkpoint_reloads(exported, tmp_path):
     cfg = PreTrainedConfig.from_pretrained(d["policy"])
     cfg.pretrained_path = Path(d["policy"])
     assert type(make_policy(cfg, ds_meta=LeRobotDatasetMetadata("local/x", root=root))).__name__ == "FlatLabStrategyPolicy"
+
+
+def test_sheet_neighbours_finds_each_sheets_own_views_and_refuses_test_objects_in_training(tmp_path):
+    train = synthetic_set(tmp_path / "train")
+    fresh = synthetic_set(tmp_path / "fresh", seed=1)
+    res = E.sheet_neighbours(train, fresh, n_points=64)
+    assert res["n_train_clouds"] == 6 and res["n_query_clouds"] == 6  # 2 sheets x 3 views; no rigid counterpart
+    po = res["per_object"]
+    assert set(po) == {"mousepad_standard", "fabric_cotton"}
+    assert po["mousepad_standard"]["nn"] == "AAA" and po["fabric_cotton"]["nn"] == "CCC"
+    for o in po.values():
+        assert o["own_mm_median"] < o["other_label_mm_median"]
+    assert po["fabric_cotton"]["other_label_object"] == "mousepad_standard"
+    tr = res["per_split"]["train"]
+    assert (tr["n"], tr["nn_label_right"], tr["own_nearer_than_other_label"]) == (6, 6, 6)
+    with pytest.raises(ValueError, match="TRAIN only"):
+        E.sheet_neighbours(synthetic_set(tmp_path / "alpha", split_override="test_alpha"), fresh, n_points=64)
+    with pytest.raises(SystemExit):
+        E.main(["--sheet-neighbours", str(train)])  # needs --set
+    out = tmp_path / "nb.json"
+    assert E.main(["--sheet-neighbours", str(train), "--set", str(fresh), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["sheet_neighbours"]["per_split"]["train"]["nn_label_right"] == 6
 
 
 def test_chamfer_yaw_ignores_placement_yaw_not_shape():

@@ -13,6 +13,9 @@ benchmark objects.
   the 3x3 confusion matrix (rows: catalog label, columns: prediction) per split.
 * ``--ambiguity SET``: how far a cloth's cloud is from its rigid counterpart's, against how far two
   placements of one object are (yaw-aligned chamfer distance on the normalized clouds).
+* ``--sheet-neighbours TRAIN_SET`` (with ``--set``): every flex sheet of ``--set`` against the flex sheets of a
+  training set, in metres: the nearest training cloud's label (1-NN), and for a TRAIN object its own views'
+  distance against the nearest other label's -- whether the cloud can tell a mouse pad (A) from a fabric (C).
 
 Writes a JSON (``--out``) with the metrics, the command, seeds, wall time, machine and git commit.
 """
@@ -241,6 +244,81 @@ def ambiguity(set_dir: Path, n_points: int = 256) -> dict:
             "frac_rigid_closer_than_own_view": round(float((df.cloth_vs_rigid < df.cloth_vs_own_other_view).mean()), 3)}
 
 
+def _sheet_clouds(clouds: np.ndarray, index, n_points: int):
+    """The flex sheets' untransformed clouds of a set, back in metres (unit-sphere cloud x radius: what the policy's
+    shape and size embedding see together), centred, the footprint's principal axes along x / y, in the 4 sign
+    flips of those axes: (rows of ``index``, array (n, 4, n_points, 3))."""
+    rows = index[(index.material == "deformable") & (index["transform"] == "original")]
+    out = []
+    for i in rows.index:
+        p = np.asarray(clouds[i][:n_points], np.float64) * float(index.loc[i, "radius"])
+        p = p - p.mean(0)
+        _, vec = np.linalg.eigh(np.cov(p[:, :2].T))
+        xy = p[:, :2] @ vec[:, ::-1]
+        out.append([np.concatenate([xy * np.array(f), p[:, 2:]], 1) for f in ((1, 1), (-1, 1), (1, -1), (-1, -1))])
+    return rows, np.asarray(out, np.float32)
+
+
+def sheet_neighbours(train_dir: Path, query_dir: Path, n_points: int = 512) -> dict:
+    """Can a cloud tell the flex sheets' labels apart?  Every flex sheet of the query set (``--set``) against every
+    flex sheet of the training set: the symmetric chamfer distance of the metric clouds (min over the 4 flips of the
+    footprint's principal axes), the label of the nearest training cloud (1-NN), and for a TRAIN object in fresh
+    placements the distance to its own training views against the nearest object of another label (the margin a
+    classifier must resolve to call it right)."""
+    import pandas as pd
+    import torch
+
+    from flatlab_lerobot.learning.strategy_set import load
+
+    tr_clouds, tr_index, _ = load(train_dir)
+    q_clouds, q_index, _ = load(query_dir)
+    refs, R = _sheet_clouds(tr_clouds, tr_index, n_points)
+    queries, Q = _sheet_clouds(q_clouds, q_index, n_points)
+    if not len(refs) or not len(queries):
+        raise ValueError(f"--sheet-neighbours: {train_dir if not len(refs) else query_dir} has no flex sheet")
+    bad = sorted(set(refs.split) - {"train"})
+    if bad:
+        raise ValueError(f"--sheet-neighbours {train_dir}: holds {bad} objects; the training set must be TRAIN only")
+    ref_t = torch.as_tensor(R[:, 0])
+    rows = []
+    for (_, row), q in zip(queries.iterrows(), Q):
+        best = None
+        for f in range(4):
+            D = torch.cdist(torch.as_tensor(q[f]).expand(len(ref_t), -1, -1), ref_t)
+            d = (D.min(2).values.mean(1) + D.min(1).values.mean(1)) / 2
+            best = d if best is None else torch.minimum(best, d)
+        d = pd.Series(best.numpy() * 1000.0, index=refs.index)
+        per_obj = d.groupby(refs.object_id).min()
+        nn = refs.loc[d.idxmin()]
+        own = per_obj.get(row.object_id)
+        other = per_obj[[o for o in per_obj.index if refs[refs.object_id == o].strategy.iloc[0] != row.strategy]]
+        rows.append({"object_id": row.object_id, "split": row.split, "category": row.category, "label": row.strategy,
+                     "view": int(row["view"]), "nn_object": nn.object_id, "nn_label": nn.strategy,
+                     "nn_mm": round(float(d.min()), 2), "own_mm": None if own is None else round(float(own), 2),
+                     "other_label_mm": round(float(other.min()), 2) if len(other) else None,
+                     "other_label_object": other.idxmin() if len(other) else None})  # fmt: skip
+    df = pd.DataFrame(rows)
+    per_split = {}
+    for s, g in df.groupby("split"):
+        per_split[s] = {"n": len(g), "nn_label_right": int((g.label == g.nn_label).sum()),
+                        "nn_mm_range": [float(g.nn_mm.min()), float(g.nn_mm.max())]}  # fmt: skip
+        if s == "train":
+            per_split[s]["own_nearer_than_other_label"] = int((g.own_mm < g.other_label_mm).sum())
+    per_object = {}
+    for o, g in df.groupby("object_id", sort=False):
+        per_object[o] = {"split": g.split.iloc[0], "label": g.label.iloc[0], "nn": "".join(g.nn_label),
+                         "nn_objects": sorted(set(g.nn_object)), "nn_mm_median": round(float(g.nn_mm.median()), 2),
+                         "other_label_object": g.other_label_object.mode().iloc[0],
+                         "other_label_mm_median": round(float(g.other_label_mm.median()), 2)}  # fmt: skip
+        if g.own_mm.notna().all():
+            per_object[o]["own_mm_median"] = round(float(g.own_mm.median()), 2)
+    return {"train_set": str(train_dir), "query_set": str(query_dir), "n_points": n_points,
+            "n_train_clouds": len(refs), "n_query_clouds": len(queries),
+            "metric": "symmetric chamfer (mm) of metric clouds (unit-sphere cloud x radius), centred, footprint axes "
+            "aligned, min over their 4 sign flips; flex sheets only, untransformed",
+            "per_split": per_split, "per_object": per_object}  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ summary
 PAPER = {"cpu": (99.2, 91.3, 78.6), "paper": (99.2, 91.3, 78.6), "ablation_A1": (97.1, 88.0, 77.3),
          "ablation_A2": (99.2, 91.3, 71.4), "ablation_A3": (99.2, 90.7, 70.5), "ablation_A7": (94.8, 82.3, 56.4),
@@ -283,6 +361,8 @@ def main(argv=None) -> int:
     ap.add_argument("--policy", type=Path, help="pretrained_model folder, or a lerobot-train output folder (select)")
     ap.add_argument("--set", type=Path, help="strategy set of the benchmark objects in fresh placements")
     ap.add_argument("--ambiguity", type=Path, help="strategy set with cloths and rigid counterparts: measure them")
+    ap.add_argument("--sheet-neighbours", type=Path, metavar="TRAIN_SET",
+                    help="strategy set of TRAIN objects: the flex sheets of --set against its flex sheets (1-NN)")
     ap.add_argument("--out", type=Path, help="JSON file to write")
     ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the recipe)")
     ap.add_argument("--train-wall", type=Path, help="JSON written next to the training run (wall time, command): "
@@ -303,10 +383,11 @@ def main(argv=None) -> int:
             args.out.write_text(text)
         print(text, end="")
         return 0
-    if not (args.policy or args.ambiguity):
-        ap.error("give --policy (with --set) and/or --ambiguity")
-    if args.policy and not args.set:
-        ap.error("--policy needs --set (the evaluation strategy set)")
+    if not (args.policy or args.ambiguity or args.sheet_neighbours):
+        ap.error("give --policy (with --set), --sheet-neighbours (with --set) and/or --ambiguity")
+    for flag, given in (("--policy", args.policy), ("--sheet-neighbours", args.sheet_neighbours)):
+        if given and not args.set:
+            ap.error(f"{flag} needs --set (the evaluation strategy set)")
     t0 = time.perf_counter()
     res: dict = {"command": "flatlab strategy-eval " + " ".join(sys.argv[1:] if argv is None else argv),
                  "label": args.label}  # fmt: skip
@@ -337,6 +418,8 @@ def main(argv=None) -> int:
             res["training"] = json.loads(args.train_wall.read_text())
         if args.ambiguity:
             res["ambiguity"] = ambiguity(args.ambiguity)
+        if args.sheet_neighbours:
+            res["sheet_neighbours"] = sheet_neighbours(args.sheet_neighbours, args.set)
     except (FileNotFoundError, ValueError, KeyError, json.JSONDecodeError) as exc:
         ap.error(str(exc))
     res.update({"wall_s": round(time.perf_counter() - t0, 1), "machine": MACHINE, "git_commit": _git_commit(),
@@ -350,6 +433,10 @@ def main(argv=None) -> int:
               f"confusion {m['confusion_catalog']}")  # fmt: skip
     if "ambiguity" in res:
         print("ambiguity (median chamfer):", res["ambiguity"]["median"])
+    for split, m in res.get("sheet_neighbours", {}).get("per_split", {}).items():
+        own = m.get("own_nearer_than_other_label")
+        print(f"sheets {split:11s} n={m['n']:3d}  1-NN label right {m['nn_label_right']}  nearest {m['nn_mm_range']} mm"
+              + ("" if own is None else f"  own views nearer than another label's: {own}"))
     return 0
 
 
