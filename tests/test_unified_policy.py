@@ -405,6 +405,32 @@ def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, m
         FlatLabUnifiedConfig(continue_from_hand="C", continue_press_repeat=True)
 
 
+@pytest.mark.parametrize("as_first", [False, True])
+def test_a_passes_as_first_poses_later_passes_with_the_first_pass_stages(tiny, monkeypatch, as_first):
+    """a_passes_as_first: the executor poses stage k of A's later push pass p as stage k - 4p of the first pass (same
+    primitive), from the observation of that stage's start; the log says so.  Without it each stage is its own."""
+    from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, asked, real = _posed_stages(monkeypatch), [], FlatLabExecutorPolicy.predict_poses
+
+    def spy(self, cloud, strategy, stage_index, primitive, *args, **kwargs):
+        asked.append((int(stage_index), primitive))
+        return real(self, cloud, strategy, stage_index, primitive, *args, **kwargs)
+
+    monkeypatch.setattr(FlatLabExecutorPolicy, "predict_poses", spy)
+    monkeypatch.setattr(M, "pass_needed", lambda missing: True)  # the untrained executor's push: every pass runs
+    pol = _load(tiny["artifact"], strategy="A", a_passes_as_first=str(as_first).lower())
+    _run_until_stage(pol, 5, 250)
+    logs = [log for _, log, _ in posed]
+    assert [log["index"] for log in logs][:6] == list(range(6)), logs
+    for (k, primitive), log in zip(asked, logs):
+        i = log["index"]
+        want = i % M.PASS_STAGES if as_first and i < M.A_PASSES * M.PASS_STAGES else i
+        assert (k, primitive) == (want, log["primitive"]) and log.get("posed_as", i) == want, (k, primitive, log)
+    assert any("posed_as" in log for log in logs) == as_first
+
+
 @pytest.mark.parametrize("cap", [False, True])
 def test_continue_slide_cap_stops_a_slide_at_the_seen_missing_overhang(tiny, monkeypatch, cap):
     """continue_slide_cap: A's slide continued from the hand advances along +x no further than the expert's

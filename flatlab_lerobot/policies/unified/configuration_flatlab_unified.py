@@ -179,6 +179,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # (the rule that already decides another push pass; contact=observed caps its slide the same way): a slide
     # that ran longer once the press held the object pushed it off the table (reads the object cloud and cell)
     continue_slide_cap: bool = False
+    # A's later push passes (pass p >= 1, when the rule above runs them) posed by the executor as its first pass
+    # (stage k - 4p: touch, press, slide, release), from the scene cloud seen now: the primitive set holds 191 Train
+    # arm-samples of the first pass, 56 of the second and 4 of the third; the first pass's poses are those of a push
+    # from behind the object as it lies to the overhang (learned only; reads the clouds it always reads). Alone it
+    # pushes objects off the table (a whole first push); with continue_slide_cap the FlatLab row since stop 61 (Train A
+    # objects, strategy A: 63 -> 77 of 100 lifted at two seed sets; docs/unified.md)
+    a_passes_as_first: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)

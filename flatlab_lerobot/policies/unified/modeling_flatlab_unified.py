@@ -378,8 +378,9 @@ class _Episode:
             self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
             return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
         executor, members = self.policy.executor_for(self.strategy)
+        posed_as = self._posed_as()
         poses = executor.predict_poses(
-            obs.cloud, self.strategy, self.index, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
+            obs.cloud, self.strategy, posed_as, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
             tta=self.policy.config.executor_tta or None, members=members,
         )
         thr = self.policy.config.active_threshold
@@ -457,8 +458,18 @@ class _Episode:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed or continued else {}), **arm_log})  # fmt: skip
+                         "duration": duration, **({"heights": heights} if observed or continued else {}), **arm_log,
+                         **({"posed_as": posed_as} if posed_as != self.index else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _posed_as(self) -> int:
+        """The stage index the executor poses this stage as: the stage itself, or with ``a_passes_as_first`` a later
+        push pass's stage as the same stage of the first pass (its primitive is the same: touch, press, slide,
+        release)."""
+        later_pass = PASS_STAGES <= self.index < A_PASSES * PASS_STAGES
+        if self.policy.config.a_passes_as_first and self.strategy == "A" and later_pass:
+            return self.index % PASS_STAGES
+        return self.index
 
     def _repeat_press(self, arm: str, p1: np.ndarray, log: dict) -> None:
         """``continue_press_repeat``: A's first press of ``arm`` is remembered; a later pass's press (``p1``, changed
