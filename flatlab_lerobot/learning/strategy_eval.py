@@ -244,18 +244,21 @@ def ambiguity(set_dir: Path, n_points: int = 256) -> dict:
             "frac_rigid_closer_than_own_view": round(float((df.cloth_vs_rigid < df.cloth_vs_own_other_view).mean()), 3)}
 
 
+FLIPS = np.array([(1, 1, 1), (-1, 1, 1), (1, -1, 1), (-1, -1, 1)], np.float32)
+"""The 4 sign flips of a footprint's principal axes (x, y; z kept)."""
+
+
 def _sheet_clouds(clouds: np.ndarray, index, n_points: int):
     """The flex sheets' untransformed clouds of a set, back in metres (unit-sphere cloud x radius: what the policy's
-    shape and size embedding see together), centred, the footprint's principal axes along x / y, in the 4 sign
-    flips of those axes: (rows of ``index``, array (n, 4, n_points, 3))."""
+    shape and size embedding see together), centred, the footprint's principal axes along x / y:
+    (rows of ``index``, array (n, n_points, 3))."""
     rows = index[(index.material == "deformable") & (index["transform"] == "original")]
     out = []
     for i in rows.index:
         p = np.asarray(clouds[i][:n_points], np.float64) * float(index.loc[i, "radius"])
         p = p - p.mean(0)
         _, vec = np.linalg.eigh(np.cov(p[:, :2].T))
-        xy = p[:, :2] @ vec[:, ::-1]
-        out.append([np.concatenate([xy * np.array(f), p[:, 2:]], 1) for f in ((1, 1), (-1, 1), (1, -1), (-1, -1))])
+        out.append(np.concatenate([p[:, :2] @ vec[:, ::-1], p[:, 2:]], 1))
     return rows, np.asarray(out, np.float32)
 
 
@@ -279,19 +282,20 @@ def sheet_neighbours(train_dir: Path, query_dir: Path, n_points: int = 512) -> d
     bad = sorted(set(refs.split) - {"train"})
     if bad:
         raise ValueError(f"--sheet-neighbours {train_dir}: holds {bad} objects; the training set must be TRAIN only")
-    ref_t = torch.as_tensor(R[:, 0])
+    ref_t = torch.as_tensor(R)
+    label_of = refs.groupby("object_id").strategy.first()  # one label per training object
     rows = []
     for (_, row), q in zip(queries.iterrows(), Q):
         best = None
-        for f in range(4):
-            D = torch.cdist(torch.as_tensor(q[f]).expand(len(ref_t), -1, -1), ref_t)
+        for flip in FLIPS:
+            D = torch.cdist(torch.as_tensor(q * flip).expand(len(ref_t), -1, -1), ref_t)
             d = (D.min(2).values.mean(1) + D.min(1).values.mean(1)) / 2
             best = d if best is None else torch.minimum(best, d)
         d = pd.Series(best.numpy() * 1000.0, index=refs.index)
         per_obj = d.groupby(refs.object_id).min()
         nn = refs.loc[d.idxmin()]
         own = per_obj.get(row.object_id)
-        other = per_obj[[o for o in per_obj.index if refs[refs.object_id == o].strategy.iloc[0] != row.strategy]]
+        other = per_obj[label_of[per_obj.index] != row.strategy]
         rows.append({"object_id": row.object_id, "split": row.split, "category": row.category, "label": row.strategy,
                      "view": int(row["view"]), "nn_object": nn.object_id, "nn_label": nn.strategy,
                      "nn_mm": round(float(d.min()), 2), "own_mm": None if own is None else round(float(own), 2),
