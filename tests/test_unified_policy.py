@@ -4,6 +4,7 @@ runs episodes through the real ``lerobot-eval`` and ``flatlab eval``; its action
 reloads to identical weights and actions; the builder refuses sub-models trained on Test objects; the
 executor is conditioned exactly as the primitive set recorded the expert's stages."""
 
+import collections
 import json
 import os
 import subprocess
@@ -429,6 +430,37 @@ def test_a_passes_as_first_poses_later_passes_with_the_first_pass_stages(tiny, m
         want = i % M.PASS_STAGES if as_first and i < M.A_PASSES * M.PASS_STAGES else i
         assert (k, primitive) == (want, log["primitive"]) and log.get("posed_as", i) == want, (k, primitive, log)
     assert any("posed_as" in log for log in logs) == as_first
+
+
+@pytest.mark.parametrize("mode", ["", "press", "all"])
+def test_continue_c_heights_sets_c_heights_from_the_observed_table(tiny, monkeypatch, mode):
+    """continue_c_heights: C's touch ends, and its squeeze (continued from the hand) ends, at the expert's pressing
+    height above the table top of observation.cell; with "all" the pinching hand's straddle and grasp end at the
+    expert's pinching height too.  Without the switch the learned heights stand."""
+    from flatlab_lerobot.strategies.c_fold_pinch import pinch_tcp_z, press_tcp_z
+
+    posed = _posed_stages(monkeypatch)
+    pol = _load(tiny["artifact"], strategy="C", continue_from_hand="C", continue_c_heights=mode)
+    _run_until_stage(pol, 6, 300)
+    assert {"touch", "squeeze", "press", "grasp"} <= {log["primitive"] for _, log, _ in posed}, posed
+    set_by_rule = collections.Counter()
+    for prim, log, obs in posed:
+        table = float(obs.cell[0])
+        want = {"touch": press_tcp_z(table), "squeeze": press_tcp_z(table), "press": pinch_tcp_z(table),
+                "grasp": pinch_tcp_z(table)}.get(prim.name)
+        for arm, motion in prim.motions.items():
+            ruled = "c_heights" in log.get("heights", {}).get(arm, {})
+            set_by_rule[prim.name] += ruled
+            if ruled:
+                assert float(motion.end[0][2]) == pytest.approx(want, abs=1e-9), (prim.name, arm, log)
+            elif want is not None and prim.name in ("touch", "squeeze"):  # the learned end: not the rule's height
+                assert abs(float(motion.end[0][2]) - want) > 1e-5, (prim.name, arm, log)
+    ruled_stages = {name for name, n in set_by_rule.items() if n}
+    assert ruled_stages == {"": set(), "press": {"touch", "squeeze"}, "all": {"touch", "squeeze", "press", "grasp"}}[mode]
+    with pytest.raises(ValueError, match="continue_c_heights needs C"):
+        FlatLabUnifiedConfig(continue_from_hand="A", continue_c_heights="press")
+    with pytest.raises(ValueError, match="continue_c_heights: one of"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_c_heights="pinch")
 
 
 @pytest.mark.parametrize("cap", [False, True])

@@ -53,6 +53,7 @@ from flatlab_lerobot.policies.unified.observed_contact import CONTACT_CHOICES
 from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES
 
 STRATEGY_CHOICES = ("learned", "A", "B", "C")
+C_HEIGHTS_CHOICES = ("", "press", "all")  # continue_c_heights: off, the pressing hands, the pinching hand too
 INPUTS = (OBS_STATE, OBS_CELL, OBS_POINTCLOUD, OBS_OBJECT_POINTCLOUD)
 """The only observations the policy reads."""
 STATE_DIM, CELL_DIM, ACTION_DIM = 16, 7, 16
@@ -186,6 +187,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # pushes objects off the table (a whole first push); with continue_slide_cap the FlatLab row since stop 61 (Train A
     # objects, strategy A: 63 -> 77 of 100 lifted at two seed sets; docs/unified.md)
     a_passes_as_first: bool = False
+    # with C in continue_from_hand: C's heights by the expert's rule on the table top of observation.cell (no cloud;
+    # the rule contact=observed applies to C): "press" sets the pressing hands' touch end and squeeze end at the
+    # expert's pressing height (finger tips 1 mm above the table, leaning), "all" also the pinching hand's straddle
+    # and grasp at its pinching height; x, y, orientations and grippers stay learned.  The learned C squeeze ran
+    # 1-6 mm lower than the expert's and stopped after 2 cm in the cloth (stop 60, docs/unified.md)
+    continue_c_heights: str = ""
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -252,6 +259,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                              f"(with observed, use --policy.contact_from_hand), got {self.contact!r}")
         if self.continue_press_repeat and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_press_repeat=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_c_heights not in C_HEIGHTS_CHOICES:
+            raise ValueError(f"--policy.continue_c_heights: one of {list(C_HEIGHTS_CHOICES)}, got {self.continue_c_heights!r}")
+        if self.continue_c_heights and "C" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
         continued = self.continue_level_slide or self.continue_press_deeper or self.continue_level_squeeze

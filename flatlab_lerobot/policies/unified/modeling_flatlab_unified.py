@@ -61,6 +61,9 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     b_aligned,
     b_centred,
     cap_slide,
+    C_PINCH_STAGES,
+    apply_heights,
+    contact_heights,
     continued_motion,
     mirror_pose,
     object_footprint_x,
@@ -397,7 +400,10 @@ class _Episode:
             arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
         commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
         continued = self.strategy in self.policy.config.continue_from_hand and spec.start == "current"  # learned only
-        if observed:
+        c_heights = self.strategy == "C" and self.policy.config.continue_c_heights
+        if c_heights and spec.primitive in C_PINCH_STAGES and self.policy.config.continue_c_heights != "all":
+            c_heights = ""  # "press": the pressing hands' touch and squeeze only
+        if observed or c_heights:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
         for a in arms:
@@ -447,6 +453,8 @@ class _Episode:
                     if not np.allclose(capped, p1):
                         heights[a]["cap"] = round(float(p1[0] - capped[0]), 4)  # how much shorter than learned
                     p1 = capped
+            if c_heights and not observed:  # C's heights by the expert's rule on the observed table (no cloud)
+                p0, p1 = self._c_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (observed and self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
@@ -458,9 +466,29 @@ class _Episode:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed or continued else {}), **arm_log,
+                         "duration": duration, **({"heights": heights} if observed or continued or c_heights else {}), **arm_log,
                          **({"posed_as": posed_as} if posed_as != self.index else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
+
+    def _c_heights(self, spec, p0: np.ndarray, p1: np.ndarray, continued: bool, pinching: bool, obs: Observed,
+                   log: dict) -> tuple[np.ndarray, np.ndarray]:
+        """``continue_c_heights``: C's stage ``spec`` of one arm, its learned motion ``p0 -> p1`` with the heights of
+        contact=observed's C rule (the expert's pressing and pinching heights above ``obs.table_top``).  A stage
+        continued from the hand keeps its start (the hand, so no transit) and gets the rule's end height only; a lift
+        keeps its learned rise."""
+        z0, z1 = contact_heights("C", self.index, spec.primitive, np.zeros((0, 3)), None, obs.table_top, obs.edge_x,
+                                 pinching=pinching)
+        if continued:
+            z0, z1 = None, (z1 if spec.primitive != "lift" else None)
+        if z0 is None and z1 is None:  # a stage the rule gives no height (a release, a move; the other arm's pinch)
+            return p0, p1
+        if continued:
+            p1 = np.array(p1, float)
+            p1[2] = z1
+        else:
+            p0, p1 = apply_heights(p0, p1, z0, z1)
+        log["c_heights"] = [z0, z1]
+        return p0, p1
 
     def _posed_as(self) -> int:
         """The stage index the executor poses this stage as: the stage itself, or with ``a_passes_as_first`` a later
