@@ -463,6 +463,31 @@ def test_continue_c_heights_sets_c_heights_from_the_observed_table(tiny, monkeyp
         FlatLabUnifiedConfig(continue_from_hand="C", continue_c_heights="pinch")
 
 
+@pytest.mark.parametrize("on", [False, True])
+def test_continue_a_sheet_lift_raises_a_continued_lift_by_the_sheet_rule(tiny, monkeypatch, on):
+    """continue_a_sheet_lift: A's lift, continued from the hand, ends where the sheet rule (sheet_lift_end, on the object
+    cloud and cell the lift was posed from) puts it; only the lift asks the rule, and without the switch nothing does."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, calls = _posed_stages(monkeypatch), []
+
+    def rule(p0, p1, points, table, edge_x):  # a sheet seen: rise 30 cm more than learned
+        calls.append(np.array(p1, float))
+        return np.asarray(p1, float) + [0.0, 0.0, 0.3], {"droop": 0.05, "rise": 0.3}
+
+    monkeypatch.setattr(M, "pass_needed", lambda missing: False)  # one push pass, then the grasp
+    monkeypatch.setattr(M, "sheet_lift_end", rule)
+    pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_a_sheet_lift=str(on).lower())
+    _run_until_stage(pol, M.A_PREAPPROACH + 3, 400)
+    lifts = [(prim.motions[arm], log["heights"][arm]) for prim, log, _ in posed if prim.name == "lift" for arm in prim.motions]
+    assert lifts, [log["primitive"] for _, log, _ in posed]
+    assert len(calls) == (len(lifts) if on else 0), (calls, lifts)
+    for (motion, h), learned in zip(lifts, calls):
+        assert np.allclose(motion.end[0], learned + [0.0, 0.0, 0.3]) and h["sheet_lift"]["rise"] == 0.3, (motion, h)
+    with pytest.raises(ValueError, match="continue_a_sheet_lift=true needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_a_sheet_lift=True)
+
+
 @pytest.mark.parametrize("cap", [False, True])
 def test_continue_slide_cap_stops_a_slide_at_the_seen_missing_overhang(tiny, monkeypatch, cap):
     """continue_slide_cap: A's slide continued from the hand advances along +x no further than the expert's

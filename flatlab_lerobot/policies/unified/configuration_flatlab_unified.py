@@ -193,6 +193,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # and grasp at its pinching height; x, y, orientations and grippers stay learned.  The learned C squeeze ran
     # 1-6 mm lower than the expert's and stopped after 2 cm in the cloth (stop 60, docs/unified.md)
     continue_c_heights: str = ""
+    # with A in continue_from_hand: A's lift of an object whose seen overhang droops (a sheet) rises at least the seen
+    # length + 8 cm, as the expert lifts a sheet (contact_a_sheet_lift's rule, observed_contact.sheet_lift_end; reads the
+    # object cloud and cell); a rigid object's learned lift stands
+    continue_a_sheet_lift: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -263,6 +267,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.continue_c_heights: one of {list(C_HEIGHTS_CHOICES)}, got {self.continue_c_heights!r}")
         if self.continue_c_heights and "C" not in self.continue_from_hand:
             raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_a_sheet_lift and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_a_sheet_lift=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
         continued = self.continue_level_slide or self.continue_press_deeper or self.continue_level_squeeze

@@ -69,6 +69,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_footprint_x,
     observed_motion,
     seen_centre,
+    sheet_lift_end,
     slide_cap,
     turned_from_hand,
 )
@@ -453,6 +454,8 @@ class _Episode:
                     if not np.allclose(capped, p1):
                         heights[a]["cap"] = round(float(p1[0] - capped[0]), 4)  # how much shorter than learned
                     p1 = capped
+                if cfg.continue_a_sheet_lift and self.strategy == "A" and spec.primitive == "lift":
+                    p1, heights[a]["sheet_lift"] = sheet_lift_end(p0, p1, obs.object_points, obs.table_top, obs.edge_x)
             if c_heights and not observed:  # C's heights by the expert's rule on the observed table (no cloud)
                 p0, p1 = self._c_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
