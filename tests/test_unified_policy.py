@@ -183,7 +183,10 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "contact_a_backoff": "true", "contact_a_sheet_lift": "true", "max_push_passes": "1"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_level_slide": "true", "continue_press_deeper": "0.004",
       "max_push_passes": "1"},
-     {"strategy": "C", "continue_from_hand": "AC", "continue_level_squeeze": "true"}],
+     {"strategy": "C", "continue_from_hand": "AC", "continue_level_squeeze": "true"},
+     {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all"},
+     {"strategy": "A", "continue_from_hand": "AC", "continue_a_grasp_heights": "true", "continue_a_sheet_lift": "true",
+      "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -449,7 +452,7 @@ def test_continue_c_heights_sets_c_heights_from_the_observed_table(tiny, monkeyp
         want = {"touch": press_tcp_z(table), "squeeze": press_tcp_z(table), "press": pinch_tcp_z(table),
                 "grasp": pinch_tcp_z(table)}.get(prim.name)
         for arm, motion in prim.motions.items():
-            ruled = "c_heights" in log.get("heights", {}).get(arm, {})
+            ruled = "rule_heights" in log.get("heights", {}).get(arm, {})
             set_by_rule[prim.name] += ruled
             if ruled:
                 assert float(motion.end[0][2]) == pytest.approx(want, abs=1e-9), (prim.name, arm, log)
@@ -461,6 +464,40 @@ def test_continue_c_heights_sets_c_heights_from_the_observed_table(tiny, monkeyp
         FlatLabUnifiedConfig(continue_from_hand="A", continue_c_heights="press")
     with pytest.raises(ValueError, match="continue_c_heights: one of"):
         FlatLabUnifiedConfig(continue_from_hand="C", continue_c_heights="pinch")
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_continue_a_grasp_heights_sets_the_approach_and_grasp_from_the_seen_overhang(tiny, monkeypatch, on):
+    """continue_a_grasp_heights: A's approach (its grasp-side 'touch') and grasp end at the height contact=observed's A
+    rule gives for the object cloud they were posed from (the seen overhang's mid height); the lift keeps its learned
+    rise; the push passes are not touched, and without the switch the rule is never asked."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, asked, real = _posed_stages(monkeypatch), [], M.contact_heights
+
+    def rule(strategy, index, primitive, points, xy, table, edge_x, pinching=True):
+        asked.append((strategy, index, primitive))
+        return (0.9, 0.9) if strategy == "A" and primitive in ("touch", "grasp") else real(
+            strategy, index, primitive, points, xy, table, edge_x, pinching=pinching)
+
+    monkeypatch.setattr(M, "pass_needed", lambda missing: False)  # one push pass, then the grasp
+    monkeypatch.setattr(M, "contact_heights", rule)
+    pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_a_grasp_heights=str(on).lower())
+    _run_until_stage(pol, M.A_PREAPPROACH + 3, 400)
+    late = [(prim, log) for prim, log, _ in posed if log["index"] >= M.A_PREAPPROACH + 1 and prim.motions]
+    assert {log["primitive"] for _, log in late} >= {"touch", "grasp", "lift"}, late
+    assert all(i >= M.A_PREAPPROACH for _, i, _ in asked), asked
+    assert bool(asked) == on, asked
+    for prim, log in late:
+        for arm, motion in prim.motions.items():
+            if on and prim.name in ("touch", "grasp"):
+                assert motion.end[0][2] == pytest.approx(0.9) and log["heights"][arm]["rule_heights"][1] == 0.9, log
+                if prim.name == "touch":  # not started at the hand: the whole approach at that height
+                    assert motion.start[0][2] == pytest.approx(0.9), log
+            else:
+                assert motion.end[0][2] != pytest.approx(0.9), (prim.name, log)
+    with pytest.raises(ValueError, match="continue_a_grasp_heights=true needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_a_grasp_heights=True)
 
 
 @pytest.mark.parametrize("on", [False, True])

@@ -197,6 +197,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # length + 8 cm, as the expert lifts a sheet (contact_a_sheet_lift's rule, observed_contact.sheet_lift_end; reads the
     # object cloud and cell); a rigid object's learned lift stands
     continue_a_sheet_lift: bool = False
+    # with A in continue_from_hand: A's approach and grasp at the mid height of the seen overhang (the object cloud's
+    # points past the table edge; contact=observed's A rule), the learned height where fewer than 10 points overhang
+    continue_a_grasp_heights: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -267,6 +270,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.continue_c_heights: one of {list(C_HEIGHTS_CHOICES)}, got {self.continue_c_heights!r}")
         if self.continue_c_heights and "C" not in self.continue_from_hand:
             raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_a_grasp_heights and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_a_grasp_heights=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_sheet_lift and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_sheet_lift=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:

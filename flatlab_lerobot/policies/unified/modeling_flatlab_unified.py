@@ -401,10 +401,12 @@ class _Episode:
             arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
         commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
         continued = self.strategy in self.policy.config.continue_from_hand and spec.start == "current"  # learned only
-        c_heights = self.strategy == "C" and self.policy.config.continue_c_heights
-        if c_heights and spec.primitive in C_PINCH_STAGES and self.policy.config.continue_c_heights != "all":
-            c_heights = ""  # "press": the pressing hands' touch and squeeze only
-        if observed or c_heights:
+        ruled = self.strategy == "C" and bool(self.policy.config.continue_c_heights)  # heights by a rule (learned only)
+        if ruled and spec.primitive in C_PINCH_STAGES and self.policy.config.continue_c_heights != "all":
+            ruled = False  # "press": the pressing hands' touch and squeeze only
+        if self.strategy == "A" and self.policy.config.continue_a_grasp_heights and self.index >= A_PREAPPROACH:
+            ruled = True  # A's approach and grasp at the seen overhang's mid height
+        if observed or ruled:
             pts = obs.object_points
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
         for a in arms:
@@ -456,8 +458,8 @@ class _Episode:
                     p1 = capped
                 if cfg.continue_a_sheet_lift and self.strategy == "A" and spec.primitive == "lift":
                     p1, heights[a]["sheet_lift"] = sheet_lift_end(p0, p1, obs.object_points, obs.table_top, obs.edge_x)
-            if c_heights and not observed:  # C's heights by the expert's rule on the observed table (no cloud)
-                p0, p1 = self._c_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
+            if ruled and not observed:  # C's heights over the observed table, A's grasp at the seen overhang
+                p0, p1 = self._rule_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (observed and self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
@@ -469,18 +471,23 @@ class _Episode:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed or continued or c_heights else {}), **arm_log,
+                         "duration": duration, **({"heights": heights} if observed or continued or ruled else {}), **arm_log,
                          **({"posed_as": posed_as} if posed_as != self.index else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
-    def _c_heights(self, spec, p0: np.ndarray, p1: np.ndarray, continued: bool, pinching: bool, obs: Observed,
-                   log: dict) -> tuple[np.ndarray, np.ndarray]:
-        """``continue_c_heights``: C's stage ``spec`` of one arm, its learned motion ``p0 -> p1`` with the heights of
-        contact=observed's C rule (the expert's pressing and pinching heights above ``obs.table_top``).  A stage
-        continued from the hand keeps its start (the hand, so no transit) and gets the rule's end height only; a lift
-        keeps its learned rise."""
-        z0, z1 = contact_heights("C", self.index, spec.primitive, np.zeros((0, 3)), None, obs.table_top, obs.edge_x,
-                                 pinching=pinching)
+    def _rule_heights(self, spec, p0: np.ndarray, p1: np.ndarray, continued: bool, pinching: bool, obs: Observed,
+                      log: dict) -> tuple[np.ndarray, np.ndarray]:
+        """``continue_c_heights`` (C's stages) and ``continue_a_grasp_heights`` (A's approach and grasp): one arm's
+        learned motion ``p0 -> p1`` of stage ``spec`` with the heights of contact=observed's rule for that strategy: for
+        C the expert's pressing and pinching heights above ``obs.table_top``, for A the seen overhang's mid height.  A
+        stage continued from the hand keeps its start (the hand, so no transit) and gets the rule's end height only; a
+        lift keeps its learned rise."""
+        if self.strategy == "A":  # continue_a_grasp_heights: the seen overhang's mid height (contact=observed's A rule)
+            xy = p1[:2] if spec.primitive == "touch" else p0[:2]
+            z0, z1 = contact_heights("A", self.index, spec.primitive, obs.object_points, xy, obs.table_top, obs.edge_x)
+        else:
+            z0, z1 = contact_heights("C", self.index, spec.primitive, np.zeros((0, 3)), None, obs.table_top, obs.edge_x,
+                                     pinching=pinching)
         if continued:
             z0, z1 = None, (z1 if spec.primitive != "lift" else None)
         if z0 is None and z1 is None:  # a stage the rule gives no height (a release, a move; the other arm's pinch)
@@ -490,7 +497,7 @@ class _Episode:
             p1[2] = z1
         else:
             p0, p1 = apply_heights(p0, p1, z0, z1)
-        log["c_heights"] = [z0, z1]
+        log["rule_heights"] = [z0, z1]
         return p0, p1
 
     def _posed_as(self) -> int:
