@@ -54,15 +54,15 @@ from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabE
 from flatlab_lerobot.policies.strategy.modeling_flatlab_strategy import FlatLabStrategyPolicy
 from flatlab_lerobot.policies.unified.configuration_flatlab_unified import FlatLabUnifiedConfig
 from flatlab_lerobot.policies.unified.observed_contact import (
+    C_PINCH_STAGES,
     GRIP_CLOSED_STRATEGIES,
     MIN_POINTS,
     a_side_arm,
     a_side_arms,
+    apply_heights,
     b_aligned,
     b_centred,
     cap_slide,
-    C_PINCH_STAGES,
-    apply_heights,
     contact_heights,
     continued_motion,
     mirror_pose,
