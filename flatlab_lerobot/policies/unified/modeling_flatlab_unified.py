@@ -64,6 +64,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     b_centred,
     cap_slide,
     contact_heights,
+    contact_xy,
     continued_motion,
     mirror_pose,
     object_footprint_x,
@@ -406,8 +407,9 @@ class _Episode:
             ruled = False  # "press": the pressing hands' touch and squeeze only
         if self.strategy == "A" and self.policy.config.continue_a_grasp_heights and self.index >= A_PREAPPROACH:
             ruled = True  # A's approach and grasp at the seen overhang's mid height
-        if observed or ruled:
+        if observed:
             pts = obs.object_points
+        if observed or ruled:
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
         for a in arms:
             src = source or a
@@ -482,12 +484,8 @@ class _Episode:
         C the expert's pressing and pinching heights above ``obs.table_top``, for A the seen overhang's mid height.  A
         stage continued from the hand keeps its start (the hand, so no transit) and gets the rule's end height only; a
         lift keeps its learned rise."""
-        if self.strategy == "A":  # continue_a_grasp_heights: the seen overhang's mid height (contact=observed's A rule)
-            xy = p1[:2] if spec.primitive == "touch" else p0[:2]
-            z0, z1 = contact_heights("A", self.index, spec.primitive, obs.object_points, xy, obs.table_top, obs.edge_x)
-        else:
-            z0, z1 = contact_heights("C", self.index, spec.primitive, np.zeros((0, 3)), None, obs.table_top, obs.edge_x,
-                                     pinching=pinching)
+        z0, z1 = contact_heights(self.strategy, self.index, spec.primitive, obs.object_points,
+                                 contact_xy(spec.primitive, p0, p1), obs.table_top, obs.edge_x, pinching=pinching)
         if continued:
             z0, z1 = None, (z1 if spec.primitive != "lift" else None)
         if z0 is None and z1 is None:  # a stage the rule gives no height (a release, a move; the other arm's pinch)

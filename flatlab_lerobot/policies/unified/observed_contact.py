@@ -279,6 +279,12 @@ def contact_heights(strategy: str, index: int, primitive: str, points: np.ndarra
     return rule(index, primitive, points, xy, table, edge_x)
 
 
+def contact_xy(primitive: str, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Where a stage's motion ``p0 -> p1`` meets the object, for the rules' heights: where a touch ends, else where
+    the motion starts."""
+    return p1[:2] if primitive == "touch" else p0[:2]
+
+
 def apply_heights(p0: np.ndarray, p1: np.ndarray, z0: float | None, z1: float | None) -> tuple[np.ndarray, np.ndarray]:
     """The motion with its heights set; a missing one keeps the learned displacement from the other."""
     p0, p1 = np.array(p0, float), np.array(p1, float)
@@ -574,8 +580,7 @@ def observed_motion(
     if at_hand:
         here = np.asarray(hand(), float)
         p0, p1 = apply_xy(p0, p1, here[:2])
-    xy = p1[:2] if primitive == "touch" else p0[:2]  # the contact point: where the touch ends, else the start
-    z = contact_heights(strategy, index, primitive, points, xy, table, edge_x, pinching=pinching)
+    z = contact_heights(strategy, index, primitive, points, contact_xy(primitive, p0, p1), table, edge_x, pinching=pinching)
     log["observed"] = list(z)
     p0, p1 = apply_heights(p0, p1, *z)
     if at_hand:  # exactly where the hand is, so the runner needs no transit to the start
