@@ -723,6 +723,18 @@ def test_alt_executor_poses_its_strategies_and_the_executor_the_others(tiny, tmp
                             alt_executor=alt_dir, log=lambda *a: None)  # fmt: skip
     with pytest.raises(ValueError, match="alt_executor_strategies"):
         FlatLabUnifiedConfig(alt_executor_strategies=["A"])  # no alt_executor
+    # alt_executor_stages=push: the second executor poses A's push passes, the first A's grasp stages
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH
+
+    pol = _load(out, strategy="A", alt_executor_stages="push")
+    posers = [pol.executor_for("A", i)[0] for i in range(len(STRATEGIES["A"]))]
+    assert all(p is pol.alt_executor for p in posers[:A_PREAPPROACH])
+    assert posers[A_PREAPPROACH:] and all(p is pol.executor for p in posers[A_PREAPPROACH:])
+    assert all(pol.executor_for("C", i)[0] is pol.alt_executor for i in range(len(STRATEGIES["C"])))  # C: all stages
+    with pytest.raises(ValueError, match="alt_executor_stages"):
+        FlatLabUnifiedConfig(alt_executor=C.FlatLabExecutorConfig(), alt_executor_strategies=["A"], alt_executor_stages="grasp")
+    with pytest.raises(ValueError, match="alt_executor_stages=push"):
+        FlatLabUnifiedConfig(alt_executor=C.FlatLabExecutorConfig(), alt_executor_strategies=["C"], alt_executor_stages="push")
 
 
 def test_executor_ensemble_poses_each_stage_by_the_mean_of_its_members(tiny, tmp_path):

@@ -60,6 +60,9 @@ STATE_DIM, CELL_DIM, ACTION_DIM = 16, 7, 16
 GENERATOR_INPUT = "observation.object_pointcloud"  # the generator must read the object cloud
 
 
+ALT_EXECUTOR_STAGES = ("all", "push")  # the stages of alt_executor_strategies the second executor poses
+
+
 def distinct_strategies(strategies) -> bool:
     """Whether ``strategies`` (a list, or a string of letters) are distinct letters of A / B / C."""
     return len(set(strategies)) == len(strategies) and set(strategies) <= set(STRATEGY_CHOICES[1:])
@@ -95,6 +98,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # ``alt_executor.*`` entries of ``model.safetensors``.  It must read the same clouds as ``executor``.
     alt_executor: FlatLabExecutorConfig | None = None
     alt_executor_strategies: list[str] = field(default_factory=list)
+    # which of those strategies' stages the second executor poses: "all" (default), or "push": only A's push passes
+    # (touch, press, slide, release; stages before A's pre-approach), so that A's grasp stages stay with ``executor``.
+    # An executor whose frame sits on the object's seen top places A's press on a thin object's top, where the grasp
+    # under the overhang is a height above the table (stop 63, docs/unified.md)
+    alt_executor_stages: str = "all"
     # an ensemble: further executors (the same recipe trained with other seeds; `flatlab unified-build
     # --executor DIR DIR ...`) whose predictions are averaged with ``executor``'s at every stage it poses;
     # weights ``executor_members.<i>.*``.  ``alt_executor_members`` likewise for ``alt_executor``.
@@ -312,6 +320,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
         check_alt_strategies(self.alt_executor_strategies, self.alt_executor is not None)
+        if self.alt_executor_stages not in ALT_EXECUTOR_STAGES:
+            raise ValueError(f"--policy.alt_executor_stages: one of {list(ALT_EXECUTOR_STAGES)}, got {self.alt_executor_stages!r}")
+        if self.alt_executor_stages == "push" and "A" not in self.alt_executor_strategies:
+            raise ValueError("--policy.alt_executor_stages=push: A's push passes, so A must be in "
+                             f"--policy.alt_executor_strategies (got {self.alt_executor_strategies!r})")
         if self.alt_executor_members and self.alt_executor is None:
             raise ValueError("--policy.alt_executor_members: given without --policy.alt_executor (members average "
                              "with the executor they belong to)")

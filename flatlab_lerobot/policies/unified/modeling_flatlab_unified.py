@@ -382,7 +382,7 @@ class _Episode:
         if self.index == len(STRATEGIES[self.strategy]) - 1:  # the final hold: no arm moves
             self.log.append({"index": self.index, "primitive": spec.primitive, "arms": []})
             return Primitive(spec.primitive, {}, spec.seconds(), transit=spec.transit)
-        executor, members = self.policy.executor_for(self.strategy)
+        executor, members = self.policy.executor_for(self.strategy, self.index)
         posed_as = self._posed_as()
         poses = executor.predict_poses(
             obs.cloud, self.strategy, posed_as, spec.primitive, self._proprio(obs), object_cloud=obs.object_cloud,
@@ -623,10 +623,14 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         """Per batch element, what each stage decided (arms, active probabilities, skipped passes)."""
         return [list(e.log) for e in self._episodes or []]
 
-    def executor_for(self, strategy: str) -> tuple[FlatLabExecutorPolicy, tuple[FlatLabExecutorPolicy, ...]]:
-        """The executor that poses ``strategy``'s stages and its ensemble members: ``alt_executor`` for the
-        strategies in ``alt_executor_strategies``, else ``executor``."""
-        if self.alt_executor is not None and strategy in self.config.alt_executor_strategies:
+    def executor_for(self, strategy: str, index: int = 0) -> tuple[FlatLabExecutorPolicy, tuple[FlatLabExecutorPolicy, ...]]:
+        """The executor that poses stage ``index`` of ``strategy`` and its ensemble members: ``alt_executor`` for
+        the strategies in ``alt_executor_strategies`` (with ``alt_executor_stages=push``, A's push passes only),
+        else ``executor``."""
+        alt = self.alt_executor is not None and strategy in self.config.alt_executor_strategies
+        if alt and self.config.alt_executor_stages == "push" and strategy == "A" and index >= A_PREAPPROACH:
+            alt = False  # A's grasp stages
+        if alt:
             return self.alt_executor, tuple(self.alt_executor_members)
         return self.executor, tuple(self.executor_members)
 
