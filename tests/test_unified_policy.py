@@ -724,12 +724,12 @@ def test_alt_executor_poses_its_strategies_and_the_executor_the_others(tiny, tmp
     with pytest.raises(ValueError, match="alt_executor_strategies"):
         FlatLabUnifiedConfig(alt_executor_strategies=["A"])  # no alt_executor
     # alt_executor_stages=push: the second executor poses A's push passes, the first A's grasp stages
-    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
 
     pol = _load(out, strategy="A", alt_executor_stages="push")
     posers = [pol.executor_for("A", i)[0] for i in range(len(STRATEGIES["A"]))]
-    assert all(p is pol.alt_executor for p in posers[:A_PREAPPROACH])
-    assert posers[A_PREAPPROACH:] and all(p is pol.executor for p in posers[A_PREAPPROACH:])
+    assert all(p is pol.alt_executor for p in posers[:M.A_PREAPPROACH])
+    assert posers[M.A_PREAPPROACH:] and all(p is pol.executor for p in posers[M.A_PREAPPROACH:])
     assert all(pol.executor_for("C", i)[0] is pol.alt_executor for i in range(len(STRATEGIES["C"])))  # C: all stages
     with pytest.raises(ValueError, match="alt_executor_stages"):
         FlatLabUnifiedConfig(alt_executor=C.FlatLabExecutorConfig(), alt_executor_strategies=["A"], alt_executor_stages="grasp")
@@ -756,8 +756,8 @@ def test_executor_ensemble_poses_each_stage_by_the_mean_of_its_members(tiny, tmp
     for k, v in own.items():
         torch.testing.assert_close(weights[f"executor_members.0.{k}"], v, atol=0, rtol=0)
     pol = _load(out, strategy="B")
-    assert len(pol.executor_members) == 1 and pol.executor_for("B") == (pol.executor, (pol.executor_members[0],))
-    assert pol.executor_for("A")[1] == (pol.executor_members[0],)  # no alt_executor: the ensemble poses every strategy
+    assert len(pol.executor_members) == 1 and pol.executor_for("B", 0) == (pol.executor, (pol.executor_members[0],))
+    assert pol.executor_for("A", 0)[1] == (pol.executor_members[0],)  # no alt_executor: the ensemble poses every strategy
     env = _env()
     obs, _ = env.reset(seed=0)
     env.close()

@@ -623,7 +623,7 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
         """Per batch element, what each stage decided (arms, active probabilities, skipped passes)."""
         return [list(e.log) for e in self._episodes or []]
 
-    def executor_for(self, strategy: str, index: int = 0) -> tuple[FlatLabExecutorPolicy, tuple[FlatLabExecutorPolicy, ...]]:
+    def executor_for(self, strategy: str, index: int) -> tuple[FlatLabExecutorPolicy, tuple[FlatLabExecutorPolicy, ...]]:
         """The executor that poses stage ``index`` of ``strategy`` and its ensemble members: ``alt_executor`` for
         the strategies in ``alt_executor_strategies`` (with ``alt_executor_stages=push``, A's push passes only),
         else ``executor``."""
