@@ -186,7 +186,10 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "continue_from_hand": "AC", "continue_level_squeeze": "true"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_a_grasp_heights": "true", "continue_a_sheet_lift": "true",
-      "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"}],
+      "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"},
+     {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
+     {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
+      "continue_c_pinch_centre": "true"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -203,7 +206,8 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
         return {k: v for k, v in _batch(obs).items() if k != OBS_ENV_STATE}
 
     c, a_arm = overrides.get("strategy") == "C", bool(overrides.get("contact_a_grasp"))
-    steps = 140 if c else 150 if a_arm else 30  # C: up to its pinch; A's grasp arm: into the grasp stages
+    stalled = bool(overrides.get("continue_press_stalled"))  # into A's second push pass, decided from the clouds
+    steps = 140 if c else 150 if a_arm or stalled else 30  # C: up to its pinch; A's grasp arm: into the grasp stages
     acts = _rollout(pols, steps=steps, batch_fns=[_batch, zeroed, absent])
     np.testing.assert_array_equal(acts[0], acts[1])
     np.testing.assert_array_equal(acts[0], acts[2])
@@ -228,6 +232,11 @@ def test_actions_never_depend_on_environment_state(tiny, overrides):
     if overrides.get("continue_level_squeeze"):  # C's squeeze continued from the hand, level
         squeeze = [d for d in pols[0].decisions[0] if d.get("primitive") == "squeeze" and d.get("arms")]
         assert squeeze and all(h == {"from_hand": True, "level": True} for h in squeeze[0]["heights"].values())
+    if stalled:  # the second pass was decided (and, stalled or not, counted) from the object cloud
+        assert any(d.get("pass") == 1 for d in pols[0].decisions[0]), pols[0].decisions[0]
+    if overrides.get("continue_c_pinch_centre"):  # the straddle moved over the seen centre, the squeeze lengthened
+        heights = [h for d in pols[0].decisions[0] for h in d.get("heights", {}).values()]
+        assert any("pinch_centre" in h for h in heights) and any("squeeze_end" in h for h in heights), heights
     if c and overrides.get("contact") == "observed":  # the squeeze stretched to the seen centre, the pinch at the table
         assert any("squeeze" in h for d in posed for h in d["heights"].values())
         press = [d for d in posed if d["primitive"] == "press"]
@@ -409,6 +418,46 @@ def test_continue_press_repeat_presses_later_passes_as_deep_as_the_first(tiny, m
         FlatLabUnifiedConfig(continue_from_hand="C", continue_press_repeat=True)
 
 
+@pytest.mark.parametrize("stalled", [0.0, 0.006])
+def test_continue_press_stalled_presses_deeper_after_a_pass_that_moved_nothing(tiny, monkeypatch, stalled):
+    """continue_press_stalled: a later push pass that finds the object cloud's missing overhang within 1 cm of what the
+    previous pass found (its press slid over the object) presses that much deeper than the learned press (and
+    continue_press_deeper), once more per such pass in a row; the log counts the stalled passes.  Without it, or
+    when the object moved, the learned depth stands."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed = _posed_stages(monkeypatch)
+    monkeypatch.setattr(M, "pass_needed", lambda missing: True)  # every pass runs
+    monkeypatch.setattr(M, "object_footprint_x", lambda cloud: (0.10, 0.30))  # the object seen where it lay: stalled
+    overrides = dict(strategy="A", continue_from_hand="A", continue_press_deeper=0.004)
+    pol = _load(tiny["artifact"], **overrides, **({"continue_press_stalled": stalled} if stalled else {}))
+    _run_until_stage(pol, 9, 300)
+    presses = [(log["index"], log["heights"][arm]["deeper"]) for _, log, _ in posed if log.get("primitive") == "press"
+               for arm in log["arms"]]  # fmt: skip
+    passes = [log for log in pol._episodes[0].log if "pass" in log]
+    assert {i for i, _ in presses} == {1, 5, 9} and len(passes) == 2, (presses, passes)
+    for index, deeper in presses:
+        k = index // M.PASS_STAGES  # passes in a row that moved nothing before this one
+        assert deeper == pytest.approx(0.004 + k * stalled), (index, deeper)
+    assert [log.get("stalled") for log in passes] == [1, 2]  # counted (and logged) with the switch off too
+
+    # moved: the count starts again
+    from flatlab_lerobot.sim.scene import CellConfig
+
+    ep = M._Episode(pol, None, "A")
+    monkeypatch.setattr(M, "object_footprint_x", lambda cloud: (float(cloud[:, 0].max()), 0.2))
+    obs = lambda x1: M.Observed(np.zeros(16), np.asarray(CellConfig().calibration()), np.zeros((N, 3)),  # noqa: E731
+                                _cloud_x(x1 - 0.2, x1))
+    for index, x1, want in [(0, 0.0, 0), (4, 0.005, 1), (8, 0.10, 0)]:
+        ep.index = index
+        ep._skip_pass(obs(x1))
+        assert ep.stalled == want, (index, x1, ep.stalled)
+    with pytest.raises(ValueError, match="continue_press_stalled needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_press_stalled=0.006)
+    with pytest.raises(ValueError, match="continue_press_stalled: must be in"):
+        FlatLabUnifiedConfig(continue_from_hand="A", continue_press_stalled=0.05)
+
+
 @pytest.mark.parametrize("as_first", [False, True])
 def test_a_passes_as_first_poses_later_passes_with_the_first_pass_stages(tiny, monkeypatch, as_first):
     """a_passes_as_first: the executor poses stage k of A's later push pass p as stage k - 4p of the first pass (same
@@ -560,6 +609,80 @@ def test_continue_slide_cap_stops_a_slide_at_the_seen_missing_overhang(tiny, mon
             assert advance == pytest.approx(0.6, abs=1e-4) and "cap" not in h, (advance, h)
     with pytest.raises(ValueError, match="continue_slide_cap=true needs A"):
         FlatLabUnifiedConfig(continue_from_hand="C", continue_slide_cap=True)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_continue_c_squeeze_end_ends_cs_squeeze_short_of_the_seen_centre(tiny, monkeypatch, on):
+    """continue_c_squeeze_end: C's squeeze, continued from the hand, keeps its learned direction and ends 2.5 cm short
+    of the seen cloth's centre (observed_contact.squeeze_end on the object cloud it was posed from; logged: how far
+    the end moved).  The tiny executor's touch is made to end 8 cm either side of the seen centre and its squeeze to
+    move each hand 1 cm towards it, so the rule lengthens it; without the switch it stands."""
+    from flatlab_lerobot.policies.executor.modeling_flatlab_executor import FlatLabExecutorPolicy
+    from flatlab_lerobot.policies import seen_points
+    from flatlab_lerobot.policies.unified.observed_contact import C_END_HALF_GAP, seen_centre
+
+    posed, real = _posed_stages(monkeypatch), FlatLabExecutorPolicy.predict_poses
+
+    dirs = {}  # per arm, the direction of its learned squeeze
+
+    def short_squeeze(self, *args, **kwargs):
+        out = real(self, *args, **kwargs)
+        centre = seen_centre(seen_points(kwargs["object_cloud"]))
+        if args[3] == "touch":  # both hands come down 8 cm either side of the seen centre
+            for arm, pose in out.items():
+                end = np.r_[centre + [0.0, 0.08 if arm == "left" else -0.08], 0.80].astype(np.float32)[None]
+                pose["start"], pose["end"] = (end + [0.0, 0.0, 0.05], pose["start"][1]), (end, pose["end"][1])
+                pose["active"] = np.ones_like(pose["active"])
+        if args[3] == "squeeze":
+            for arm, pose in out.items():
+                dirs[arm] = np.array([0.0, -1.0 if arm == "left" else 1.0])  # from its side towards the centre
+                pose["end"] = (pose["start"][0] + np.r_[0.01 * dirs[arm], 0.0].astype(np.float32), pose["end"][1])
+        return out
+
+    monkeypatch.setattr(FlatLabExecutorPolicy, "predict_poses", short_squeeze)
+    pol = _load(tiny["artifact"], strategy="C", continue_from_hand="C", continue_c_squeeze_end=str(on).lower())
+    _run_until_stage(pol, 1, 120)
+    squeezes = [(arm, prim.motions[arm], log["heights"][arm], obs) for prim, log, obs in posed if prim.name == "squeeze"
+                for arm in prim.motions]  # fmt: skip
+    assert squeezes, posed
+    for arm, motion, h, obs in squeezes:
+        p0, p1, d = motion.start[0], motion.end[0], dirs[arm]
+        along = float((p1[:2] - p0[:2]) @ d)
+        assert np.allclose(p1[:2] - p0[:2], along * d, atol=1e-5), (p0, p1, d)  # along its own direction only
+        if on:  # to 2.5 cm short of the seen centre (never behind its start)
+            want = float((seen_centre(obs.object_points) - p0[:2]) @ d) - C_END_HALF_GAP
+            assert want > 0.02 and along == pytest.approx(want, abs=1e-4), (arm, along, want)  # longer than learned
+            assert h["squeeze_end"] == pytest.approx(want - 0.01, abs=1e-4), h
+        else:
+            assert along == pytest.approx(0.01, abs=1e-4) and "squeeze_end" not in h, (along, h)
+    with pytest.raises(ValueError, match="continue_c_squeeze_end=true needs C"):
+        FlatLabUnifiedConfig(continue_from_hand="A", continue_c_squeeze_end=True)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_continue_c_pinch_centre_straddles_the_seen_cloths_centre(tiny, monkeypatch, on):
+    """continue_c_pinch_centre: C's straddle (the press of the arm whose learned gripper closes most) is the learned
+    motion shifted to start over the seen cloth's centre, on the object cloud it was posed from (its heights kept;
+    logged: how far it moved); the other arm's motion and every other stage stay learned.  Without it the learned
+    straddle stands."""
+    from flatlab_lerobot.policies.unified.observed_contact import seen_centre
+
+    posed = _posed_stages(monkeypatch)
+    pol = _load(tiny["artifact"], strategy="C", continue_c_pinch_centre=str(on).lower())
+    _run_until_stage(pol, 5, 300)
+    straddle = [(prim, log, obs) for prim, log, obs in posed if log["index"] == 5]
+    assert straddle and straddle[0][0].name == "press", posed
+    prim, log, obs = straddle[0]
+    shifted = {a: h for a, h in log.get("heights", {}).items() if "pinch_centre" in h}
+    if on:
+        assert len(shifted) == 1, log  # the pinching hand only
+        (arm, h), = shifted.items()
+        start = prim.motions[arm].start[0]
+        assert np.allclose(start[:2], seen_centre(obs.object_points), atol=1e-6), (start, obs.object_points.mean(0))
+        assert h["pinch_centre"] > 0.0, h
+    else:
+        assert not shifted, log
+    assert all("pinch_centre" not in h for _, lg, _ in posed if lg["index"] != 5 for h in lg.get("heights", {}).values())
 
 
 def test_each_stage_is_posed_from_the_observation_of_its_start(tiny):

@@ -183,6 +183,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # the first pass ended (commanded, world z): the object's thickness and the table do not change between
     # passes, and the first pass's press is the one that pushed it (reads no cloud: the policy's own commands)
     continue_press_repeat: bool = False
+    # with continue_from_hand (A): a later push pass that finds the object cloud where the previous pass found it
+    # (its footprint's missing overhang changed by less than STALL_TOL, 1 cm: that pass's press slid over the object)
+    # presses this much deeper than the learned press (and continue_press_deeper), once more for each such pass in a
+    # row (m, >= 0; reads the object cloud and cell, as the rule that decides the pass does).  Traces of Train trials
+    # (stop 65): mousepad_standard and disk_compact_disc at seed 1004 pressed at 0.768-0.770 m, 0.8 cm above the presses
+    # that pushed, and three passes left the object where it lay
+    continue_press_stalled: float = 0.0
     # with continue_from_hand (A): a slide continued from the hand advances along +x at most the expert's
     # ``slide_distance`` for the overhang still missing, measured on the object cloud seen as the slide is planned
     # (the rule that already decides another push pass; contact=observed caps its slide the same way): a slide
@@ -201,6 +208,18 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # and grasp at its pinching height; x, y, orientations and grippers stay learned.  The learned C squeeze ran
     # 1-6 mm lower than the expert's and stopped after 2 cm in the cloth (stop 60, docs/unified.md)
     continue_c_heights: str = ""
+    # with C in continue_from_hand: C's squeeze, continued from the hand along its learned direction, ends C_END_HALF_GAP
+    # (2.5 cm) short of the seen cloth's centre, as the expert's squeeze ends 2.5 cm from the sheet's centre
+    # (contact=observed's C squeeze rule, observed_contact.squeeze_end; reads the object cloud).  Traces of Train trials
+    # (stop 65): on shorts_sport at seeds 1001 and 1004 the learned squeeze left the hands 9-10 cm apart where the
+    # expert's leaves them 5-6 cm apart, the fold stayed low and the pinch rose empty
+    continue_c_squeeze_end: bool = False
+    # C's straddle (the pinching hand's press, the arm whose learned gripper closes most) comes down over the seen
+    # cloth's centre: the learned motion shifted so that it starts there, heights and orientation kept, as the expert
+    # straddles the fold at the sheet's current centre (contact=observed's C rule, observed_contact.c_pinch_xy; reads
+    # the object cloud).  Traces of Train trials (stop 65): with the longer squeeze above, the learned left-hand moves
+    # dragged the taller fold 4-5 cm (shorts_denim seed 2000) and the learned straddle came down beside it
+    continue_c_pinch_centre: bool = False
     # with A in continue_from_hand: A's lift of an object whose seen overhang droops (a sheet) rises at least the seen
     # length + 8 cm, as the expert lifts a sheet (contact_a_sheet_lift's rule, observed_contact.sheet_lift_end; reads the
     # object cloud and cell); a rigid object's learned lift stands
@@ -282,6 +301,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_a_grasp_heights=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_sheet_lift and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_sheet_lift=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_c_squeeze_end and "C" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_c_squeeze_end=true needs C in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_press_stalled and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_press_stalled needs A in --policy.continue_from_hand (e.g. AC)")
+        if not 0.0 <= float(self.continue_press_stalled) <= 0.02:
+            raise ValueError(f"--policy.continue_press_stalled: must be in [0, 0.02] m, got {self.continue_press_stalled!r}")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
         continued = self.continue_level_slide or self.continue_press_deeper or self.continue_level_squeeze

@@ -60,7 +60,9 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     a_side_arm,
     a_side_arms,
     apply_heights,
+    apply_xy,
     b_aligned,
+    c_pinch_xy,
     b_centred,
     cap_slide,
     contact_heights,
@@ -72,6 +74,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     seen_centre,
     sheet_lift_end,
     slide_cap,
+    squeeze_end,
     turned_from_hand,
 )
 from flatlab_lerobot.primitives import ArmMotion, Primitive, Unreachable, joint_action
@@ -93,6 +96,7 @@ RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to 
 REACH_TOL = 0.03  # m: reach_check: a stage whose start pose the IK misses by more is not run
 RETRY_TRACK_JUMP = 0.08  # m: retry_track: the seen centre moving this far in one control step is another object
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
+STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen missing overhang by less moved nothing
 
 
 @dataclass
@@ -194,6 +198,8 @@ class _Episode:
         self.track_jumped = False  # retry_track: it jumped (the env shows another object) since the attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
         self.first_press_z: dict[str, float] = {}  # continue_press_repeat: per arm, where A's first press ended (z)
+        self.pass_missing: list[float | None] = []  # A: the seen missing overhang at the start of each push pass
+        self.stalled = 0  # continue_press_stalled: push passes in a row that found the object where the last one did
 
     def act(self, obs: Observed) -> np.ndarray:
         self.obs = obs
@@ -361,18 +367,26 @@ class _Episode:
         self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
         self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
         self.a_pusher, self.first_press_z = None, {}
+        self.pass_missing, self.stalled = [], 0
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
         """Strategy A at a later pass's first stage: skip the whole pass (and advance past it) when the
         object cloud already overhangs the edge enough, or when ``max_push_passes`` have run."""
         p = self.index // PASS_STAGES
-        if self.strategy != "A" or self.index % PASS_STAGES or not 1 <= p < A_PASSES:
+        if self.strategy != "A" or self.index % PASS_STAGES or not 0 <= p < A_PASSES:
             return False
         foot = object_footprint_x(obs.object_cloud)
         missing = None if foot is None else overhang_missing(foot[0], foot[1], obs.edge_x)
+        last = self.pass_missing[-1] if self.pass_missing else None
+        self.pass_missing.append(missing)
+        if p == 0:  # the first pass always runs; what it finds is what the next pass compares with
+            return False
+        stalled = missing is not None and last is not None and abs(missing - last) < STALL_TOL
+        self.stalled = self.stalled + 1 if stalled else 0
         skip = p >= self.policy.config.max_push_passes or (missing is not None and not pass_needed(missing))
-        self.log.append({"index": self.index, "pass": p, "missing": missing, "skipped": bool(skip)})
+        self.log.append({"index": self.index, "pass": p, "missing": missing, "skipped": bool(skip),
+                         **({"stalled": self.stalled} if self.stalled else {})})
         if skip:
             self.index += PASS_STAGES - 1
         return skip
@@ -409,7 +423,8 @@ class _Episode:
             ruled = True  # A's approach and grasp at the seen overhang's mid height
         if observed:
             pts = obs.object_points
-        if observed or ruled:
+        pinch_centre = self.strategy == "C" and self.policy.config.continue_c_pinch_centre and spec.primitive == "press"
+        if observed or ruled or pinch_centre:
             pincher = min(arms, key=lambda a: float(poses[a]["gripper"][1][0]))  # the arm whose gripper closes most
         for a in arms:
             src = source or a
@@ -448,6 +463,8 @@ class _Episode:
                 level = (cfg.continue_level_slide and spec.primitive == "slide") or (
                     cfg.continue_level_squeeze and spec.primitive == "squeeze")
                 deeper = cfg.continue_press_deeper if spec.primitive == "press" else 0.0
+                if spec.primitive == "press" and self.strategy == "A" and cfg.continue_press_stalled:
+                    deeper += self.stalled * float(cfg.continue_press_stalled)  # the last pass slid over it
                 (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a], level=level, deeper=deeper)
                 heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}
                 if cfg.continue_press_repeat and self.strategy == "A" and spec.primitive == "press":
@@ -458,10 +475,19 @@ class _Episode:
                     if not np.allclose(capped, p1):
                         heights[a]["cap"] = round(float(p1[0] - capped[0]), 4)  # how much shorter than learned
                     p1 = capped
+                if cfg.continue_c_squeeze_end and self.strategy == "C" and spec.primitive == "squeeze":
+                    end = squeeze_end(p0, p1, obs.object_points)  # 2.5 cm short of the seen cloth's centre
+                    heights[a]["squeeze_end"] = round(float(np.linalg.norm(end[:2] - p1[:2])), 4)  # moved by (m)
+                    p1 = end
                 if cfg.continue_a_sheet_lift and self.strategy == "A" and spec.primitive == "lift":
                     p1, heights[a]["sheet_lift"] = sheet_lift_end(p0, p1, obs.object_points, obs.table_top, obs.edge_x)
             if ruled and not observed:  # C's heights over the observed table, A's grasp at the seen overhang
                 p0, p1 = self._rule_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
+            if pinch_centre and a == pincher and not observed:  # C's straddle over the seen cloth's centre
+                xy = c_pinch_xy(spec.primitive, obs.object_points, None)
+                if xy is not None:
+                    heights.setdefault(a, {})["pinch_centre"] = round(float(np.linalg.norm(xy - p0[:2])), 4)  # moved by
+                    p0, p1 = apply_xy(p0, p1, xy)
             g0, g1 = (float(np.clip(g[0], 0.0, GRIPPER_MAX_WIDTH)) for g in poses[src]["gripper"])
             if (observed and self.policy.config.contact_grip_closed and self.strategy in GRIP_CLOSED_STRATEGIES and a == pincher
                     and spec.primitive in ("grasp", "lift")):  # the pinch closes fully and stays closed
@@ -473,7 +499,8 @@ class _Episode:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
-                         "duration": duration, **({"heights": heights} if observed or continued or ruled else {}), **arm_log,
+                         "duration": duration, **({"heights": heights} if observed or continued or ruled or heights else {}),
+                         **arm_log,
                          **({"posed_as": posed_as} if posed_as != self.index else {})})  # fmt: skip
         return Primitive(spec.primitive, motions, duration, transit=spec.transit)
 
