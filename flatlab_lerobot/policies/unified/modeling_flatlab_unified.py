@@ -198,7 +198,7 @@ class _Episode:
         self.track_jumped = False  # retry_track: it jumped (the env shows another object) since the attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
         self.first_press_z: dict[str, float] = {}  # continue_press_repeat: per arm, where A's first press ended (z)
-        self.pass_missing: list[float | None] = []  # A: the seen missing overhang at the start of each push pass
+        self.last_missing: float | None = None  # A: the seen missing overhang at the start of the last push pass
         self.stalled = 0  # continue_press_stalled: push passes in a row that found the object where the last one did
 
     def act(self, obs: Observed) -> np.ndarray:
@@ -367,19 +367,20 @@ class _Episode:
         self.grip = {"left": float(self.last[7]), "right": float(self.last[15])}
         self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
         self.a_pusher, self.first_press_z = None, {}
-        self.pass_missing, self.stalled = [], 0
+        self.last_missing, self.stalled = None, 0
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
         """Strategy A at a later pass's first stage: skip the whole pass (and advance past it) when the
-        object cloud already overhangs the edge enough, or when ``max_push_passes`` have run."""
+        object cloud already overhangs the edge enough, or when ``max_push_passes`` have run.  At every pass's first
+        stage (the first pass's too) the missing overhang is kept, and a later pass that finds it within STALL_TOL of
+        the last one counts as stalled (``continue_press_stalled``)."""
         p = self.index // PASS_STAGES
         if self.strategy != "A" or self.index % PASS_STAGES or not 0 <= p < A_PASSES:
             return False
         foot = object_footprint_x(obs.object_cloud)
         missing = None if foot is None else overhang_missing(foot[0], foot[1], obs.edge_x)
-        last = self.pass_missing[-1] if self.pass_missing else None
-        self.pass_missing.append(missing)
+        last, self.last_missing = self.last_missing, missing
         if p == 0:  # the first pass always runs; what it finds is what the next pass compares with
             return False
         stalled = missing is not None and last is not None and abs(missing - last) < STALL_TOL
