@@ -189,7 +189,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
-      "continue_c_pinch_centre": "true"}],
+      "continue_c_pinch_centre": "true"},
+     {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -1060,6 +1061,55 @@ def test_quick_retry_goes_home_at_once_when_the_lift_visibly_failed(tiny, quick)
     assert ep.index == n - 1 and ep.after is None
     with pytest.raises(ValueError, match="quick_retry=true needs --policy.clear_all=true"):
         FlatLabUnifiedConfig(quick_retry=True)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_retry_failed_tries_the_next_strategy_after_a_visibly_failed_lift(tiny, monkeypatch, on):
+    """retry_failed (one object per episode): nothing lifted as the final hold begins -> home at once and the next
+    most probable strategy; lifted but not aloft -> the hold runs, then home and the next; aloft -> held on, no
+    retry; the object off the table -> no new attempt.  Column S stays the first attempt's (the generator's
+    choice).  Without the switch the policy holds after its first attempt whatever it sees."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
+    pol = _load(tiny["artifact"], retry_failed=str(on).lower())
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+    monkeypatch.setattr(pol, "choose_strategy", lambda cloud: "B")
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
+    pol._episodes = [ep]
+    flat = _desk_observed(sim)
+    top = float(flat.object_points[:, 2].max())
+    risen = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.0, 0.0, top + 0.06]]])
+    hold = {s: round(STAGE_SPECS[s][-1].seconds() / 0.1) for s in "ABC"}  # the final hold's steps
+
+    def after_lift(obs, limit=200):  # the lift has just ended; act until a new attempt starts (or limit steps)
+        ep.actions, ep.index = None, len(STRATEGIES[ep.strategy]) - 2
+        n, before = 0, len(ep.attempts)
+        while len(ep.attempts) == before and n < limit:
+            ep.act(obs)
+            n += 1
+        return n - 1
+
+    ep.act(flat)  # the first attempt starts on the flat object: B, the generator's choice
+    assert ep.attempts == ["B"]
+    steps = after_lift(flat)
+    if not on:
+        assert steps == 199 and ep.attempts == ["B"] and ep.stage == "hold"
+        with pytest.raises(ValueError, match="retry_failed=true is for one object per episode"):
+            FlatLabUnifiedConfig(retry_failed=True, clear_all=True)
+        return
+    assert steps == HOME_STEPS and ep.attempts == ["B", "A"]  # nothing lifted: home at once, then A
+    assert [d["retry_failed"] for d in ep.log if "retry_failed" in d] == ["nothing lifted"]
+    assert pol.strategies == ["B"]  # column S: the generator's first choice
+    assert after_lift(risen) == hold["A"] + HOME_STEPS and ep.attempts == ["B", "A", "C"]  # its hold, then home
+    assert [d["retry_failed"] for d in ep.log if "retry_failed" in d][-1] == "not aloft after the hold"
+    aloft = _desk_observed(sim, np.array([0.0, 0.0, 0.1]))
+    assert after_lift(aloft) == 199 and ep.attempts == ["B", "A", "C"] and ep.stage == "hold"  # held on
+    ep.actions, ep.after, ep.started, ep.strategy = None, None, False, None  # the object fell off the table
+    for _ in range(5):
+        ep.act(_desk_observed(sim, np.array([0.0, 0.0, -0.4])))
+    assert ep.stage == "hold" and len(ep.attempts) == 3
 
 
 @pytest.mark.parametrize("retry", [False, True])

@@ -252,6 +252,8 @@ class Evaluator:
                 }
                 if getattr(env, "layout", None) is not None:  # a scenario (clear_desk): what became of each object
                     record["desk"] = desk_outcome(env, self.policy)
+                elif len(attempts := (getattr(self.policy, "attempts", None) or [[]])[0]) > 1:
+                    record["attempts"] = attempts  # a policy that retried: the strategy of every attempt
                 yield record
         finally:
             close_envs(envs)

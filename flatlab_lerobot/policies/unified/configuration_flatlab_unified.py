@@ -135,8 +135,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
     # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
     retry_next_strategy: bool = False
-    # with retry_next_strategy: the attempts one strategy gets on an object left in place before the next most
-    # probable one is tried (1: switch after every failed attempt)
+    # with retry_next_strategy or retry_failed: the attempts one strategy gets on an object left in place before
+    # the next most probable one is tried (1: switch after every failed attempt)
     retry_switch_after: int = 1
     # with retry_next_strategy: the object is the same as the last attempt's when the object cloud, followed from
     # step to step, never jumped since (wherever the attempt moved it), not when it is seen where that attempt
@@ -149,6 +149,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with clear_all: when the object cloud is not aloft as the final hold begins (the lift visibly failed),
     # skip the hold and the settle and go home at once, to retry sooner
     quick_retry: bool = False
+    # one object per episode (not with clear_all, whose retries are the switches above): an attempt whose lift
+    # visibly failed -- the object cloud not aloft when the final hold ends, or, already as it begins, its seen
+    # top not risen 5 cm above where it lay when the attempt started -- lets go, goes home and starts again,
+    # with the generator's most probable strategy not yet tried retry_switch_after times (a fixed strategy:
+    # the same one); nothing is tried while the object cloud is off the table.  Not in the paper
+    retry_failed: bool = False
     # learned: every pose as the executor predicts it (the paper's method); observed: the heights of the
     # stages that touch the object (A's press passes and side grasp, B's squeeze) and the length of A's
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
@@ -326,6 +332,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.retry_switch_after: must be in [1, 10], got {self.retry_switch_after!r}")
         if self.quick_retry and not self.clear_all:
             raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
+        if self.retry_failed and self.clear_all:
+            raise ValueError("--policy.retry_failed=true is for one object per episode; with --policy.clear_all=true "
+                             "use its own retries (--policy.quick_retry, --policy.retry_next_strategy)")
         if self.contact_b_steady and not self.contact_from_hand:
             raise ValueError("--policy.contact_b_steady=true needs --policy.contact_from_hand=true (hand orientation)")
         if not 0 <= int(self.generator_tta) <= 64:

@@ -96,6 +96,7 @@ RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to 
 REACH_TOL = 0.03  # m: reach_check: a stage whose start pose the IK misses by more is not run
 RETRY_TRACK_JUMP = 0.08  # m: retry_track: the seen centre moving this far in one control step is another object
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
+LIFTED_RISE = 0.05  # m: retry_failed: the seen top risen less than this since the attempt started = nothing lifted
 STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen missing overhang by less moved nothing
 
 
@@ -200,6 +201,8 @@ class _Episode:
         self.first_press_z: dict[str, float] = {}  # continue_press_repeat: per arm, where A's first press ended (z)
         self.last_missing: float | None = None  # A: the seen missing overhang at the start of the last push pass
         self.stalled = 0  # continue_press_stalled: push passes in a row that found the object where the last one did
+        self.start_top: float | None = None  # retry_failed: the object cloud's seen top when the attempt started
+        self.hold_checked = False  # retry_failed: the attempt's final hold ended and was judged
 
     def act(self, obs: Observed) -> np.ndarray:
         self.obs = obs
@@ -209,12 +212,14 @@ class _Episode:
             self.q, self.grip = obs.q14.copy(), obs.fingers
             self.last = joint_action(self.q, self.grip)
         if not self.started:
-            if self.policy.config.clear_all and not self._object_on_table(obs):
+            if (self.policy.config.clear_all or self.policy.config.retry_failed) and not self._object_on_table(obs):
                 self.stage = "hold"  # nothing (more) on the table to start on
                 return self.last
             if self.strategy is None:
                 self.strategy = self._next_strategy(obs)
             self.started = True
+            pts = obs.object_points
+            self.start_top = float(pts[:, 2].max()) if len(pts) else None
             self.attempts.append(self.strategy)
         n_stages = len(STRATEGIES[self.strategy])
         while True:
@@ -236,6 +241,9 @@ class _Episode:
             if self.index + 1 >= n_stages:
                 if self.policy.config.clear_all:
                     self.after = self._after_hold(obs)
+                    continue
+                if self._failed_after_hold(obs):  # retry_failed: not aloft after the hold, go home and try again
+                    self.after = self._after_hold(obs, settle=False)
                     continue
                 self.stage = "hold"
                 return self.last
@@ -279,10 +287,32 @@ class _Episode:
 
     def _failed_before_hold(self, obs: Observed, n_stages: int) -> bool:
         """``quick_retry`` (with ``clear_all``): the final hold is about to begin and the object cloud is not
-        aloft -- the lift visibly failed, and arms that stand still will not lift it."""
-        if not (self.policy.config.quick_retry and self.index == n_stages - 1) or self._aloft(obs):
+        aloft -- the lift visibly failed, and arms that stand still will not lift it.  ``retry_failed``: the
+        same, but only when nothing was lifted at all (the seen top has not risen LIFTED_RISE since the attempt
+        started); an object lifted but not yet aloft (a cloth whose hem still touches the table, a pair of hands
+        still settling) gets its hold, and is judged at its end (:meth:`_failed_after_hold`)."""
+        cfg = self.policy.config
+        if self.index != n_stages - 1 or not (cfg.quick_retry or cfg.retry_failed) or self._aloft(obs):
             return False
+        if cfg.retry_failed:
+            pts = obs.object_points
+            rise = float(pts[:, 2].max()) - self.start_top if len(pts) and self.start_top is not None else 0.0
+            if rise >= LIFTED_RISE:
+                return False
+            self.log.append({"index": self.index, "retry_failed": "nothing lifted", "rise": round(rise, 4)})
+            return True
         self.log.append({"index": self.index, "quick_retry": True})
+        return True
+
+    def _failed_after_hold(self, obs: Observed) -> bool:
+        """``retry_failed``: the final hold has just ended (judged once per attempt) and the object cloud is not
+        aloft.  An object seen aloft is held on for the rest of the episode, as without the switch."""
+        if not self.policy.config.retry_failed or self.hold_checked:
+            return False
+        self.hold_checked = True
+        if self._aloft(obs):
+            return False
+        self.log.append({"index": self.index, "retry_failed": "not aloft after the hold"})
         return True
 
     def _unreachable(self, obs: Observed, miss: Unreachable, n_stages: int) -> None:
@@ -295,9 +325,10 @@ class _Episode:
         and the squeeze that followed threw the laptop beside the pad off the table."""
         self.log.append({"index": self.index, "unreachable": miss.miss})
         self.actions, self.index = None, n_stages - 1
-        if self.policy.config.retry_next_strategy and self.tried:
-            self.tried += [self.tried[-1]] * (int(self.policy.config.retry_switch_after) - self.tried.count(self.tried[-1]))
-        if self.policy.config.clear_all:
+        cfg = self.policy.config
+        if (cfg.retry_next_strategy or cfg.retry_failed) and self.tried:
+            self.tried += [self.tried[-1]] * (int(cfg.retry_switch_after) - self.tried.count(self.tried[-1]))
+        if cfg.clear_all or cfg.retry_failed:
             self.after = self._after_hold(obs, settle=False)
 
     def _after_hold(self, obs: Observed, settle: bool = True):
@@ -328,13 +359,16 @@ class _Episode:
         attempt started (within RETRY_SAME_OBJECT: the same object, left on the table; with ``retry_track``: the
         object the last attempt ended on, followed step by step, wherever it was moved), its most probable
         strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again)."""
-        if not self.policy.config.retry_next_strategy:
+        cfg = self.policy.config
+        if not (cfg.retry_next_strategy or cfg.retry_failed):
             return self.policy.choose_strategy(obs.object_cloud)
-        k = int(self.policy.config.retry_switch_after)
+        k = int(cfg.retry_switch_after)
         pts = obs.object_points
         here = seen_centre(pts)[:2] if len(pts) else None
         same = here is not None and self.tried_at is not None
-        if self.policy.config.retry_track:
+        if cfg.retry_failed:  # one object per episode: every attempt is on it
+            same = bool(self.tried)
+        elif cfg.retry_track:
             same, self.track_jumped = same and not self.track_jumped, False
         else:
             same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
@@ -368,6 +402,7 @@ class _Episode:
         self.strategy, self.index, self.lift_arms, self.started, self.a_side = self.fixed, -1, (), False, None
         self.a_pusher, self.first_press_z = None, {}
         self.last_missing, self.stalled = None, 0
+        self.start_top, self.hold_checked = None, False
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
@@ -620,8 +655,10 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
 
     @property
     def strategies(self) -> list[str | None]:
-        """Per batch element, the strategy of the current episode (``flatlab eval``'s column S)."""
-        return [e.strategy for e in self._episodes or []]
+        """Per batch element, the strategy of the current episode (``flatlab eval``'s column S); with
+        ``retry_failed``, the first attempt's: the generator's choice, not the retry that followed it."""
+        return [e.attempts[0] if e.policy.config.retry_failed and e.attempts else e.strategy
+                for e in self._episodes or []]
 
     @property
     def stages(self) -> list[str | None]:
@@ -643,7 +680,7 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
 
     @property
     def attempts(self) -> list[list[str]]:
-        """Per batch element, the strategy of every attempt of the episode (one, unless ``clear_all``)."""
+        """Per batch element, the strategy of every attempt of the episode (one, unless ``clear_all`` or ``retry_failed``)."""
         return [list(e.attempts) for e in self._episodes or []]
 
     @property
