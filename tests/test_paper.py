@@ -43,7 +43,8 @@ def test_presets_expand_into_a_consistent_registry(preset):
         for label, paper_row in R.T1_ROWS:
             assert ("grasp", label) in rows, label
         # a Table 1 stage's row is the paper's or a listed variant (else table1 would drop it)
-        known = {label for label, _ in R.T1_ROWS + R.T1_VARIANT_ROWS}
+        known = {label for label, _ in R.T1_ROWS} | {label for label, *_ in R.T1_VARIANT_ROWS}
+        assert {after for *_, after in R.T1_VARIANT_ROWS} <= {label for label, _ in R.T1_ROWS}
         assert {s.report["row"] for s in ctx.stages.values() if s.report.get("table") == "grasp"} <= known
         assert {("strategy", r) for r in R.GENERATOR_ROWS} <= rows
         assert {("executor", r) for r in R.EXECUTOR_ROWS} <= rows
