@@ -39,8 +39,8 @@ ROW_TEXT = {"oracle": "scripted oracle (expert, catalog label)", "Slide (scripte
             "Lift (scripted)": "Lift, scripted (expert, always B)",
             "Slide": "Slide (flatlab_unified, strategy A)", "Lift": "Lift (flatlab_unified, strategy B)",
             "FlatLab": "FlatLab (flatlab_unified)",
-            **{f"{m}, one attempt": f"{m}, one attempt per episode (the paper's protocol: no retry of a failed lift)"
-               for m in ("FlatLab", "Slide", "Lift")},
+            **{f"{m}, one attempt": f"{m}, one attempt per episode (the paper's protocol: no retry of a "
+                                    "failed lift)" for m in ("FlatLab", "Slide", "Lift")},
             "ACT": "ACT (not in the paper)",
             **{f"{m}, half-turn demos": f"{m} on half-turn demos (the expert's `b_right_half_turn`{'; not in the paper' if m == 'ACT' else ''})"
                for m in ("ACT", "Diffusion Policy", "3D Diffusion Policy")},

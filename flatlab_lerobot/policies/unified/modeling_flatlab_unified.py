@@ -27,7 +27,8 @@ Per episode of batch element ``i``, on what the robot observes only:
    Which arm pushes / grasps comes from the executor's ``active`` head.
 5. the final ``hold`` stage (never a training sample: no arm moves) holds still for the expert's
    2.6 s; then the last action is repeated -- or, with ``config.clear_all`` (the ``clear_desk``
-   scenario), the object is carried off and the state machine starts over (:meth:`_Episode._after_hold`).
+   scenario), the object is carried off and the state machine starts over (:meth:`_Episode._after_hold`);
+   with ``config.retry_failed``, an object not seen aloft sends the arms home and a new attempt starts.
 
 ``strategies`` / ``stages`` / ``stage_indices`` expose, per batch element, the chosen strategy (``flatlab
 eval`` fills column S from it), the primitive the last action belongs to ("move" during a transit) and
@@ -358,7 +359,8 @@ class _Episode:
         """The generator's strategy; with ``retry_next_strategy``, when the object cloud is seen where the last
         attempt started (within RETRY_SAME_OBJECT: the same object, left on the table; with ``retry_track``: the
         object the last attempt ended on, followed step by step, wherever it was moved), its most probable
-        strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again)."""
+        strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again).
+        With ``retry_failed`` (one object per episode) every attempt after the first is on the same object."""
         cfg = self.policy.config
         if not (cfg.retry_next_strategy or cfg.retry_failed):
             return self.policy.choose_strategy(obs.object_cloud)
@@ -680,7 +682,8 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
 
     @property
     def attempts(self) -> list[list[str]]:
-        """Per batch element, the strategy of every attempt of the episode (one, unless ``clear_all`` or ``retry_failed``)."""
+        """Per batch element, the strategy of every attempt of the episode (one, unless ``clear_all`` or
+        ``retry_failed``)."""
         return [list(e.attempts) for e in self._episodes or []]
 
     @property
