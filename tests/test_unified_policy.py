@@ -1135,6 +1135,25 @@ def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_p
         FlatLabUnifiedConfig(retry_next_strategy=True)
 
 
+@pytest.mark.parametrize("rank", ["current", "first_sight"])
+def test_retry_rank_first_sight_keeps_the_ranking_of_the_untouched_object(tiny, monkeypatch, rank):
+    """retry_failed with retry_switch_after=2: the generator ranks the untouched object C, A, B and every later
+    cloud B, A, C (a dropped cloth lies folded).  current ranks each retry on the cloud seen then; first_sight keeps
+    the first attempt's ranking for every retry on the object.  A bad value names the flag."""
+    pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank=rank)
+    calls = []
+    monkeypatch.setattr(pol, "rank_strategies", lambda cloud: calls.append(1) or (["C", "A", "B"] if len(calls) == 1
+                                                                                  else ["B", "A", "C"]))  # fmt: skip
+    ep = _Episode(pol, None, None)
+    cell = np.r_[0.75, 0.6, np.zeros(5)]
+    obs = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[0.1, -0.2, 0.76] + np.zeros((K, 3)))
+    got = [ep._next_strategy(obs) for _ in range(6)]
+    assert got == (["C", "B", "B", "A", "A", "C"] if rank == "current" else ["C", "C", "A", "A", "B", "B"])
+    assert len(calls) == (6 if rank == "current" else 1)
+    with pytest.raises(ValueError, match="--policy.retry_rank"):
+        FlatLabUnifiedConfig(retry_rank="last")
+
+
 @pytest.mark.parametrize("switch", [False, True])
 def test_a_pusher_side_pushes_with_the_arm_on_the_seen_objects_side(tiny, switch):
     """contact_a_pusher_side: A's push passes are commanded to the arm on the seen object's side (the expert's

@@ -138,6 +138,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with retry_next_strategy or retry_failed: the attempts one strategy gets on an object left in place before
     # the next most probable one is tried (1: switch after every failed attempt)
     retry_switch_after: int = 1
+    # with retry_next_strategy or retry_failed: what ranks the strategies of a retry on the same object.  current:
+    # the object cloud seen as the retry starts; first_sight: the cloud seen as the first attempt on this object
+    # started (the object as it lay before anything touched it, like every cloud the generator was trained on; a
+    # cloth dropped from a failed C lies folded and is ranked B or A: Train's shorts_sport at seed 1001, stop 67)
+    retry_rank: str = "current"
     # with retry_next_strategy: the object is the same as the last attempt's when the object cloud, followed from
     # step to step, never jumped since (wherever the attempt moved it), not when it is seen where that attempt
     # started (A's push moves it, so a strategy that pushes never counted as tried twice)
@@ -328,6 +333,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
         if self.retry_track and not self.retry_next_strategy:
             raise ValueError("--policy.retry_track=true needs --policy.retry_next_strategy=true (what it tracks for)")
+        if self.retry_rank not in ("current", "first_sight"):
+            raise ValueError(f"--policy.retry_rank: one of current, first_sight, got {self.retry_rank!r}")
         if not 1 <= int(self.retry_switch_after) <= 10:
             raise ValueError(f"--policy.retry_switch_after: must be in [1, 10], got {self.retry_switch_after!r}")
         if self.quick_retry and not self.clear_all:

@@ -196,6 +196,7 @@ class _Episode:
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
         self.tried: list[str] = []  # retry_next_strategy: the strategy of each attempt on the object seen at tried_at
         self.tried_at: np.ndarray | None = None  # its seen centre (x, y) when the last attempt started
+        self.first_ranked: list[str] | None = None  # retry_rank=first_sight: the ranking at the first attempt on it
         self.track_at: np.ndarray | None = None  # retry_track: the object cloud's seen centre (x, y) at the last step
         self.track_jumped = False  # retry_track: it jumped (the env shows another object) since the attempt started
         self.log: list[dict] = []  # per stage: what was decided (tests, debugging)
@@ -360,7 +361,9 @@ class _Episode:
         attempt started (within RETRY_SAME_OBJECT: the same object, left on the table; with ``retry_track``: the
         object the last attempt ended on, followed step by step, wherever it was moved), its most probable
         strategy not yet tried ``retry_switch_after`` times there (all three tried that often: from the top again).
-        With ``retry_failed`` (one object per episode) every attempt after the first is on the same object."""
+        With ``retry_failed`` (one object per episode) every attempt after the first is on the same object.  With
+        ``retry_rank=first_sight`` a retry on the same object keeps the ranking of the cloud seen as the first
+        attempt on it started, instead of ranking the cloud seen now."""
         cfg = self.policy.config
         if not (cfg.retry_next_strategy or cfg.retry_failed):
             return self.policy.choose_strategy(obs.object_cloud)
@@ -376,7 +379,12 @@ class _Episode:
             same = same and float(np.linalg.norm(here - self.tried_at)) < RETRY_SAME_OBJECT
         if not same or len(self.tried) >= 3 * k:
             self.tried = []
-        ranked = self.policy.rank_strategies(obs.object_cloud)
+        if same and cfg.retry_rank == "first_sight" and self.first_ranked is not None:
+            ranked = list(self.first_ranked)
+        else:
+            ranked = self.policy.rank_strategies(obs.object_cloud)
+        if not same:
+            self.first_ranked = list(ranked)
         choice = next(s for s in ranked if self.tried.count(s) < k)
         self.log.append({"retry": {"same_object": bool(same), "tried": list(self.tried), "ranked": ranked,
                                    "chosen": choice}})  # fmt: skip
