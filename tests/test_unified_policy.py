@@ -187,7 +187,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_a_grasp_heights": "true", "continue_a_sheet_lift": "true",
       "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"},
-     {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
+     {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006", "continue_a_preapproach_line": "true",
+      "max_push_passes": "1"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
       "continue_c_pinch_centre": "true"},
      {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"}],
@@ -548,6 +549,38 @@ def test_continue_a_grasp_heights_sets_the_approach_and_grasp_from_the_seen_over
                 assert motion.end[0][2] != pytest.approx(0.9), (prim.name, log)
     with pytest.raises(ValueError, match="continue_a_grasp_heights=true needs A"):
         FlatLabUnifiedConfig(continue_from_hand="C", continue_a_grasp_heights=True)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_continue_a_preapproach_line_moves_from_the_hand_in_a_straight_line(tiny, monkeypatch, on):
+    """continue_a_preapproach_line: A's pre-approach starts exactly at each commanded hand (position and orientation,
+    so the runner makes no joint-space transit) and ends at the learned pose, over the stage's transit time; without
+    the switch it starts at the learned pose (the runner's transit gets there)."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+
+    posed, real = [], M._Episode._primitive
+
+    def spy(self, obs):  # the primitive, its log entry and the commanded hands as it was posed
+        hands = self.expert.fk(self.q)
+        prim = real(self, obs)
+        posed.append((prim, self.log[-1], hands))
+        return prim
+
+    monkeypatch.setattr(M._Episode, "_primitive", spy)
+    monkeypatch.setattr(M, "pass_needed", lambda missing: False)  # one push pass, then the grasp
+    pol = _load(tiny["artifact"], strategy="A", continue_from_hand="A", continue_a_preapproach_line=str(on).lower())
+    _run_until_stage(pol, M.A_PREAPPROACH + 1, 400)
+    pre = [(prim, log, hands) for prim, log, hands in posed if log["index"] == M.A_PREAPPROACH and prim.motions]
+    assert len(pre) == 1, [log for _, log, _ in posed]
+    prim, log, hands = pre[0]
+    spec = M.STAGE_SPECS["A"][M.A_PREAPPROACH]
+    for arm, motion in prim.motions.items():
+        at_hand = np.allclose(motion.start[0], hands[arm][0]) and np.allclose(motion.start[1], hands[arm][1])
+        assert at_hand == on, (arm, motion.start, hands[arm])
+        assert (log.get("heights", {}).get(arm) == {"line": True}) == on, log
+    assert (prim.duration == pytest.approx(spec.transit)) == on, prim.duration
+    with pytest.raises(ValueError, match="continue_a_preapproach_line=true needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_a_preapproach_line=True)
 
 
 @pytest.mark.parametrize("on", [False, True])

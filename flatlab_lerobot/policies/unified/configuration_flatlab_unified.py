@@ -238,6 +238,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with A in continue_from_hand: A's approach and grasp at the mid height of the seen overhang (the object cloud's
     # points past the table edge; contact=observed's A rule), the learned height where fewer than 10 points overhang
     continue_a_grasp_heights: bool = False
+    # with A in continue_from_hand: A's pre-approach runs as a Cartesian line from each commanded hand (position and
+    # orientation) to its learned pose, in the stage's transit time, instead of a joint-space transit (contact_a_grasp's
+    # line for contact=observed; reads nothing).  Traces of Train trials (stop 67): from the pusher's release 11 cm above
+    # book_paperback_novel (seed 1001) and disk_vinyl_lp (seed 1001), the transit's joint-space path swung the turning
+    # hand down onto the pushed object and swept it off the table, where the expert's transit passed above it
+    continue_a_preapproach_line: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -310,6 +316,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_grasp_heights and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_grasp_heights=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.continue_a_preapproach_line and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_a_preapproach_line=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_sheet_lift and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_sheet_lift=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_c_squeeze_end and "C" not in self.continue_from_hand:

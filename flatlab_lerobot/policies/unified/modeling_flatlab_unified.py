@@ -504,6 +504,11 @@ class _Episode:
                 if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
                     R0 = commanded_fk()[a][1]
                     duration = max(duration, spec.transit)
+            elif (self.policy.config.continue_a_preapproach_line and self.strategy == "A"
+                  and self.index == A_PREAPPROACH and "A" in self.policy.config.continue_from_hand):
+                p0, R0 = (np.array(v, float) for v in commanded_fk()[a])  # a Cartesian line from the hand, no transit
+                heights[a] = {"line": True}
+                duration = max(duration, spec.transit)
             elif continued:  # continue_from_hand: from the commanded hand, by the learned displacement and turn
                 cfg = self.policy.config
                 level = (cfg.continue_level_slide and spec.primitive == "slide") or (
