@@ -501,14 +501,10 @@ class _Episode:
                     R0, R1 = turned_from_hand(R0, R1, commanded_fk()[a][1])
                 if heights[a].get("still") or heights[a].get("steady"):  # A's grasp (contact_a_grasp): the
                     R1 = R0  # fingers close, the hand stays; B's squeeze, lift (contact_b_steady): no turn
-                if heights[a].get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
-                    R0 = commanded_fk()[a][1]
-                    duration = max(duration, spec.transit)
             elif (self.policy.config.continue_a_preapproach_line and self.strategy == "A"
-                  and self.index == A_PREAPPROACH and "A" in self.policy.config.continue_from_hand):
-                p0, R0 = (np.array(v, float) for v in commanded_fk()[a])  # a Cartesian line from the hand, no transit
+                  and self.index == A_PREAPPROACH):  # from the hand (continue_from_hand holds A: the config checks)
+                p0 = np.array(commanded_fk()[a][0], float)
                 heights[a] = {"line": True}
-                duration = max(duration, spec.transit)
             elif continued:  # continue_from_hand: from the commanded hand, by the learned displacement and turn
                 cfg = self.policy.config
                 level = (cfg.continue_level_slide and spec.primitive == "slide") or (
@@ -532,6 +528,9 @@ class _Episode:
                     p1 = end
                 if cfg.continue_a_sheet_lift and self.strategy == "A" and spec.primitive == "lift":
                     p1, heights[a]["sheet_lift"] = sheet_lift_end(p0, p1, obs.object_points, obs.table_top, obs.edge_x)
+            if heights.get(a, {}).get("line"):  # a Cartesian line from the hand to the learned pose, in transit time
+                R0 = commanded_fk()[a][1]  # (contact_a_grasp, continue_a_preapproach_line): the runner makes no transit
+                duration = max(duration, spec.transit)
             if ruled and not observed:  # C's heights over the observed table, A's grasp at the seen overhang
                 p0, p1 = self._rule_heights(spec, p0, p1, continued, a == pincher, obs, heights.setdefault(a, {}))
             if pinch_centre and a == pincher and not observed:  # C's straddle over the seen cloth's centre
