@@ -191,7 +191,9 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "max_push_passes": "1"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
       "continue_c_pinch_centre": "true"},
-     {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"}],
+     {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
+     {"retry_failed": "true", "retry_switch_after": "2", "retry_on_response": "true", "first_attempt": "C",
+      "retry_rank": "first_sight"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
@@ -1143,6 +1145,69 @@ def test_retry_failed_tries_the_next_strategy_after_a_visibly_failed_lift(tiny, 
     for _ in range(5):
         ep.act(_desk_observed(sim, np.array([0.0, 0.0, -0.4])))
     assert ep.stage == "hold" and len(ep.attempts) == 3
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(tiny, monkeypatch, on):
+    """retry_on_response (with retry_failed): C's squeeze that raised no fold (a rigid object) ends the attempt at
+    once and rules C out; a fold keeps it going.  An A push pass after which the object cloud hangs below the table
+    top (a drooping sheet) ends it and rules out A and B; a level object keeps it going.  The readings are logged
+    either way; without the switch nothing ends early.  first_attempt moves its strategy to the ranking's top."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import C_SQUEEZED
+    from flatlab_lerobot.strategies.a_push_to_edge import PASS_STAGES
+    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
+    flat = _desk_observed(sim)
+    top = float(flat.object_points[:, 2].max())
+    fold = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.0, 0.0, top + 0.04]]])
+    droop = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.9, 0.0, flat.table_top - 0.06]]])
+
+    def episode(first):
+        pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank="first_sight",
+                    retry_on_response=str(on).lower(), first_attempt=first)
+        monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+        ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
+        pol._episodes = [ep]
+        ep.act(flat)  # the first attempt starts on the flat object
+        assert ep.attempts == [first]  # ranked first by first_attempt, though the generator ranks it last
+        return ep
+
+    def after_stage(ep, index, obs, limit=60):  # the stage before ``index`` has just ended; act until a new attempt
+        ep.actions, ep.index = None, index - 1  # starts: the steps before it (None: none started in ``limit``)
+        n, before = 0, len(ep.attempts)
+        while len(ep.attempts) == before and n < limit:
+            ep.act(obs)
+            n += 1
+        return n - 1 if len(ep.attempts) > before else None
+
+    ep = episode("C")  # a rigid object: the squeeze raised nothing
+    steps = after_stage(ep, C_SQUEEZED, flat)
+    reading = [d for d in ep.log if "fold_rise" in d][0]
+    assert reading["fold_rise"] < 0.02 and reading["response_failed"] is on
+    if on:
+        assert steps == HOME_STEPS and ep.attempts == ["C", "B"] and ep.tried == ["C", "C", "B"]
+    else:
+        assert steps is None and ep.attempts == ["C"]  # the attempt goes on
+    ep = episode("C")  # a sheet: the squeeze raised a fold, the attempt goes on
+    assert after_stage(ep, C_SQUEEZED, fold) is None and ep.attempts == ["C"]
+    assert [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
+
+    ep = episode("A")  # a sheet drooping over the edge after the first push pass
+    steps = after_stage(ep, PASS_STAGES, droop)
+    reading = [d for d in ep.log if "droop" in d][0]
+    assert reading["droop"] > 0.03 and reading["response_failed"] is on
+    if on:
+        assert steps == HOME_STEPS and ep.attempts == ["A", "C"]  # A and B ruled out
+    else:
+        assert steps is None and ep.attempts == ["A"]
+    ep = episode("A")  # a level object after the push pass: A goes on
+    assert after_stage(ep, PASS_STAGES, flat, limit=5) is None and [d["response_failed"] for d in ep.log if "droop" in d] == [False]
+    with pytest.raises(ValueError, match="retry_on_response=true needs --policy.retry_failed=true"):
+        FlatLabUnifiedConfig(retry_on_response=True)
+    with pytest.raises(ValueError, match="first_attempt: one of A, B, C"):
+        FlatLabUnifiedConfig(first_attempt="D")
 
 
 @pytest.mark.parametrize("retry", [False, True])

@@ -160,6 +160,16 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with the generator's most probable strategy not yet tried retry_switch_after times (a fixed strategy:
     # the same one); nothing is tried while the object cloud is off the table.  Not in the paper
     retry_failed: bool = False
+    # with retry_failed: an attempt whose object answers as another kind of object ends there, and the strategies
+    # that answer rules out count as tried retry_switch_after times.  C's squeeze has just ended and the seen top has
+    # not risen RESPONSE_FOLD_RISE above where it lay (no fold: a rigid object) -> C ruled out; one of A's push
+    # passes has just ended and the object cloud hangs RESPONSE_DROOP below the table top (a sheet drooping over
+    # the edge) -> A and B ruled out.  Spares the 300-step episode a whole wrong attempt.  Not in the paper
+    retry_on_response: bool = False
+    # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
+    # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
+    # first_sight, the retries keep that ranking.  Column S then reports this strategy.  Empty: off
+    first_attempt: str = ""
     # learned: every pose as the executor predicts it (the paper's method); observed: the heights of the
     # stages that touch the object (A's press passes and side grasp, B's squeeze) and the length of A's
     # slide by the expert's rules on the observed object cloud and table, the rest learned (not in the
@@ -347,6 +357,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.retry_switch_after: must be in [1, 10], got {self.retry_switch_after!r}")
         if self.quick_retry and not self.clear_all:
             raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
+        if self.retry_on_response and not self.retry_failed:
+            raise ValueError("--policy.retry_on_response=true needs --policy.retry_failed=true (the retry it ends in)")
+        if self.first_attempt not in ("", "A", "B", "C"):
+            raise ValueError(f"--policy.first_attempt: one of A, B, C or empty, got {self.first_attempt!r}")
         if self.retry_failed and self.clear_all:
             raise ValueError("--policy.retry_failed=true is for one object per episode; with --policy.clear_all=true "
                              "use its own retries (--policy.quick_retry, --policy.retry_next_strategy)")

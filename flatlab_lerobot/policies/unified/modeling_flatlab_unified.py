@@ -99,6 +99,9 @@ RETRY_TRACK_JUMP = 0.08  # m: retry_track: the seen centre moving this far in on
 ON_TABLE_BELOW = 0.05  # m: an object whose highest seen point is within this of the table top (or above) lies on it
 LIFTED_RISE = 0.05  # m: retry_failed: the seen top risen less than this since the attempt started = nothing lifted
 STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen missing overhang by less moved nothing
+RESPONSE_FOLD_RISE = 0.02  # m: retry_on_response: C's squeeze raised the seen top less than this = no fold (rigid)
+RESPONSE_DROOP = 0.03  # m: retry_on_response: the object cloud this far below the table top after a push = a sheet
+C_SQUEEZED = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "squeeze") + 1  # C's stage after its squeeze
 
 
 @dataclass
@@ -250,6 +253,8 @@ class _Episode:
                 self.stage = "hold"
                 return self.last
             self.index += 1
+            if self._response_failed(obs, n_stages):  # retry_on_response: the object answers as another kind
+                continue
             if self._skip_pass(obs):
                 continue
             if self._failed_before_hold(obs, n_stages):  # quick_retry: nothing aloft to hold, go home now
@@ -317,6 +322,36 @@ class _Episode:
         self.log.append({"index": self.index, "retry_failed": "not aloft after the hold"})
         return True
 
+    def _response_failed(self, obs: Observed, n_stages: int) -> bool:
+        """How the object answered the stage that has just ended, logged at two points of every attempt: C's
+        squeeze (the seen top's rise since the attempt started: a sheet folds up, a rigid object does not) and each
+        of A's push passes (how far the object cloud hangs below the table top: a sheet pushed over the edge
+        droops, a rigid object stays level).  With ``retry_on_response`` an answer of another kind of object
+        (no fold; a droop) ends the attempt: the arms go home at once and the strategies it rules out count as
+        tried ``retry_switch_after`` times, so the next attempt takes the generator's most probable other one."""
+        pts, i = obs.object_points, self.index
+        if not len(pts) or self.start_top is None:
+            return False
+        if self.strategy == "C" and i == C_SQUEEZED:
+            rise = float(pts[:, 2].max()) - self.start_top
+            entry, other, ruled_out = {"index": i, "fold_rise": round(rise, 4)}, rise < RESPONSE_FOLD_RISE, ("C",)
+        elif self.strategy == "A" and 0 < i <= A_PREAPPROACH and i % PASS_STAGES == 0:
+            droop = obs.table_top - float(pts[:, 2].min())
+            entry, other, ruled_out = {"index": i, "droop": round(droop, 4)}, droop > RESPONSE_DROOP, ("A", "B")
+        else:
+            return False
+        cfg = self.policy.config
+        entry["response_failed"] = fire = bool(cfg.retry_on_response and other)
+        self.log.append(entry)
+        if not fire:
+            return False
+        k = int(cfg.retry_switch_after)
+        for s in ruled_out:
+            self.tried += [s] * (k - self.tried.count(s))
+        self.actions, self.index = None, n_stages - 1
+        self.after = self._after_hold(obs, settle=False)
+        return True
+
     def _unreachable(self, obs: Observed, miss: Unreachable, n_stages: int) -> None:
         """``reach_check``: the stage's start pose is out of the arm's reach (its IK, on the robot's kinematic
         model, misses it by more than REACH_TOL), so the attempt ends before the arm moves.  With
@@ -365,8 +400,9 @@ class _Episode:
         ``retry_rank=first_sight`` a retry on the same object keeps the ranking of the cloud seen as the first
         attempt on it started, instead of ranking the cloud seen now."""
         cfg = self.policy.config
+        forced = cfg.first_attempt if not self.attempts else ""  # diagnostic: ranked first on the first sight
         if not (cfg.retry_next_strategy or cfg.retry_failed):
-            return self.policy.choose_strategy(obs.object_cloud)
+            return forced or self.policy.choose_strategy(obs.object_cloud)
         k = int(cfg.retry_switch_after)
         pts = obs.object_points
         here = seen_centre(pts)[:2] if len(pts) else None
@@ -383,6 +419,8 @@ class _Episode:
             ranked = list(self.first_ranked)
         else:
             ranked = self.policy.rank_strategies(obs.object_cloud)
+            if forced:
+                ranked = [forced] + [s for s in ranked if s != forced]
         if not same:
             self.first_ranked = list(ranked)
         choice = next(s for s in ranked if self.tried.count(s) < k)
