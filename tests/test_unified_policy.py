@@ -192,7 +192,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
       "continue_c_pinch_centre": "true"},
      {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
-     {"retry_failed": "true", "retry_switch_after": "2", "retry_on_response": "true", "first_attempt": "C",
+     {"retry_failed": "true", "retry_switch_after": "2", "retry_on_response": "AC", "first_attempt": "C",
       "retry_rank": "first_sight"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
@@ -1166,7 +1166,7 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
 
     def episode(first):
         pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank="first_sight",
-                    retry_on_response=str(on).lower(), first_attempt=first)
+                    retry_on_response="AC" if on else "", first_attempt=first)
         monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
         ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
         pol._episodes = [ep]
@@ -1193,6 +1193,9 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
     ep = episode("C")  # a sheet: the squeeze raised a fold, the attempt goes on
     assert after_stage(ep, C_SQUEEZED, fold) is None and ep.attempts == ["C"]
     assert [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
+    ep = episode("C")  # no fold, but at a later attempt (a sheet a failed A left over the edge folds less): goes on
+    ep.attempts = ["A", "C"]
+    assert after_stage(ep, C_SQUEEZED, flat) is None and [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
 
     ep = episode("A")  # a sheet drooping over the edge after the first push pass
     steps = after_stage(ep, PASS_STAGES, droop)
@@ -1204,8 +1207,10 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
         assert steps is None and ep.attempts == ["A"]
     ep = episode("A")  # a level object after the push pass: A goes on
     assert after_stage(ep, PASS_STAGES, flat, limit=5) is None and [d["response_failed"] for d in ep.log if "droop" in d] == [False]
-    with pytest.raises(ValueError, match="retry_on_response=true needs --policy.retry_failed=true"):
-        FlatLabUnifiedConfig(retry_on_response=True)
+    with pytest.raises(ValueError, match="retry_on_response needs --policy.retry_failed=true"):
+        FlatLabUnifiedConfig(retry_on_response="C")
+    with pytest.raises(ValueError, match="retry_on_response: letters of A, C"):
+        FlatLabUnifiedConfig(retry_on_response="B", retry_failed=True)
     with pytest.raises(ValueError, match="first_attempt: one of A, B, C"):
         FlatLabUnifiedConfig(first_attempt="D")
 
