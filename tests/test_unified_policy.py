@@ -1164,9 +1164,10 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
     fold = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.0, 0.0, top + 0.04]]])
     droop = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.9, 0.0, flat.table_top - 0.06]]])
 
-    def episode(first):
-        pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank="first_sight",
-                    retry_on_response="AC" if on else "", first_attempt=first)
+    def episode(first, **retries):
+        retries = retries or {"retry_failed": "true", "retry_rank": "first_sight"}
+        pol = _load(tiny["artifact"], retry_switch_after="2", retry_on_response="AC" if on else "", first_attempt=first,
+                    **retries)
         monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
         ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
         pol._episodes = [ep]
@@ -1194,7 +1195,7 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
     assert after_stage(ep, C_SQUEEZED, fold) is None and ep.attempts == ["C"]
     assert [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
     ep = episode("C")  # no fold, but at a later attempt (a sheet a failed A left over the edge folds less): goes on
-    ep.attempts = ["A", "C"]
+    ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
     assert after_stage(ep, C_SQUEEZED, flat) is None and [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
 
     ep = episode("A")  # a sheet drooping over the edge after the first push pass
@@ -1207,7 +1208,10 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
         assert steps is None and ep.attempts == ["A"]
     ep = episode("A")  # a level object after the push pass: A goes on
     assert after_stage(ep, PASS_STAGES, flat, limit=5) is None and [d["response_failed"] for d in ep.log if "droop" in d] == [False]
-    with pytest.raises(ValueError, match="retry_on_response needs --policy.retry_failed=true"):
+    ep = episode("C", clear_all="true", retry_next_strategy="true")  # the desk's retries, on the object left in place
+    steps = after_stage(ep, C_SQUEEZED, flat)
+    assert (steps, ep.attempts) == ((HOME_STEPS, ["C", "B"]) if on else (None, ["C"]))
+    with pytest.raises(ValueError, match="retry_on_response needs --policy.retry_failed=true or"):
         FlatLabUnifiedConfig(retry_on_response="C")
     with pytest.raises(ValueError, match="retry_on_response: letters of A, C"):
         FlatLabUnifiedConfig(retry_on_response="B", retry_failed=True)

@@ -160,12 +160,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with the generator's most probable strategy not yet tried retry_switch_after times (a fixed strategy:
     # the same one); nothing is tried while the object cloud is off the table.  Not in the paper
     retry_failed: bool = False
-    # with retry_failed, for the strategies whose letters it holds (C, A, AC; empty: off): an attempt whose object
-    # answers as another kind of object ends there, and the strategies that answer rules out count as tried
-    # retry_switch_after times.  C: the first attempt's squeeze has just ended and the seen top has not risen
-    # RESPONSE_FOLD_RISE above where it lay (no fold: a rigid object) -> C ruled out.  A: one of A's push passes has
-    # just ended and the object cloud hangs RESPONSE_DROOP below the table top (a sheet drooping over the edge) ->
-    # A and B ruled out.  Spares the 300-step episode a whole wrong attempt.  Not in the paper
+    # with retry_failed (or, on the desk, retry_next_strategy), for the strategies whose letters it holds (C, A,
+    # AC; empty: off): an attempt whose object answers as another kind of object ends there, and the strategies that
+    # answer rules out count as tried retry_switch_after times.  C: the squeeze of the first attempt on the object
+    # has just ended and the seen top has not risen RESPONSE_FOLD_RISE above where it lay (no fold: a rigid object)
+    # -> C ruled out.  A: one of A's push passes has just ended and the object cloud hangs RESPONSE_DROOP below the
+    # table top (a sheet drooping over the edge) -> A and B ruled out.  Spares the episode a whole wrong attempt.
+    # Not in the paper
     retry_on_response: str = ""
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
@@ -360,8 +361,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
         if set(self.retry_on_response) - set("AC"):
             raise ValueError(f"--policy.retry_on_response: letters of A, C (or empty), got {self.retry_on_response!r}")
-        if self.retry_on_response and not self.retry_failed:
-            raise ValueError("--policy.retry_on_response needs --policy.retry_failed=true (the retry it ends in)")
+        if self.retry_on_response and not (self.retry_failed or self.retry_next_strategy):
+            raise ValueError("--policy.retry_on_response needs --policy.retry_failed=true or, with clear_all, "
+                             "--policy.retry_next_strategy=true (the retry it ends in)")
         if self.first_attempt not in ("", "A", "B", "C"):
             raise ValueError(f"--policy.first_attempt: one of A, B, C or empty, got {self.first_attempt!r}")
         if self.retry_failed and self.clear_all:

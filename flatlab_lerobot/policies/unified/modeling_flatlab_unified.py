@@ -336,7 +336,7 @@ class _Episode:
             return False
         if self.strategy == "C" and i == C_SQUEEZED:
             rise = float(pts[:, 2].max()) - self.start_top
-            other = rise < RESPONSE_FOLD_RISE and len(self.attempts) == 1
+            other = rise < RESPONSE_FOLD_RISE and self.tried == ["C"]  # the first attempt on this object
             entry, ruled_out = {"index": i, "fold_rise": round(rise, 4)}, ("C",)
         elif self.strategy == "A" and 0 < i <= A_PREAPPROACH and i % PASS_STAGES == 0:
             droop = obs.table_top - float(pts[:, 2].min())
