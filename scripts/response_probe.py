@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from flatlab_lerobot.evaluation.protocol import Evaluator, resolve_policy
+from flatlab_lerobot.evaluation.protocol import evaluator_for
 
 KEYS = ("fold_rise", "droop", "retry_failed", "retry")
 
@@ -29,18 +29,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--out", required=True, type=Path, help="JSON lines file (appended; resumes)")
     args, extra = ap.parse_known_args(argv)
-    extra = [a for a in extra if a != "--"]
-    bad = [a for a in extra if not a.startswith(("--env.", "--policy."))]
-    if bad:
-        ap.error(f"after --: only --env.* and --policy.* flags, got {bad}")
+    ev = evaluator_for(args.policy, args.seed, [a for a in extra if a != "--"])
     done = set()
     if args.out.exists():
         done = {(r["object_id"], r["trial"]) for r in map(json.loads, args.out.read_text().splitlines())}
-    policy, builtin = resolve_policy(args.policy)
-    spec = {"policy": policy, "builtin": builtin, "rename_map": {}, "seed": args.seed,
-            "env_args": [a.replace("--env.", "--", 1) for a in extra if a.startswith("--env.")],
-            "policy_args": [a.replace("--policy.", "--", 1) for a in extra if a.startswith("--policy.")]}  # fmt: skip
-    ev = Evaluator(spec)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for obj in args.objects.split(","):
         todo = [t for t in range(args.trials) if (obj, t) not in done]

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 
 from flatlab_lerobot.env import FlatLabEnv
-from flatlab_lerobot.evaluation.protocol import Evaluator, resolve_policy
+from flatlab_lerobot.evaluation.protocol import evaluator_for
 
 
 def main(argv=None) -> int:
@@ -29,15 +29,7 @@ def main(argv=None) -> int:
     ap.add_argument("--trial", type=int, default=0, help="flatlab eval's trial index (episode seed = --seed + trial)")
     ap.add_argument("--seed", type=int, default=1000)
     args, extra = ap.parse_known_args(argv)
-    extra = [a for a in extra if a != "--"]
-    bad = [a for a in extra if not a.startswith(("--env.", "--policy."))]
-    if bad:
-        ap.error(f"after --: only --env.* and --policy.* flags, got {bad}")
-    policy, builtin = resolve_policy(args.policy)
-    spec = {"policy": policy, "builtin": builtin, "rename_map": {}, "seed": args.seed,
-            "env_args": [a.replace("--env.", "--", 1) for a in extra if a.startswith("--env.")],
-            "policy_args": [a.replace("--policy.", "--", 1) for a in extra if a.startswith("--policy.")]}  # fmt: skip
-    ev = Evaluator(spec)
+    ev = evaluator_for(args.policy, args.seed, [a for a in extra if a != "--"])
     rows: list[tuple] = []
     step = FlatLabEnv.step
 

@@ -583,6 +583,16 @@ def _split_extra(extra: list[str]) -> tuple[list[str], list[str]]:
     return env_args, policy_args
 
 
+def evaluator_for(policy: str, seed: int, extra: list[str]) -> Evaluator:
+    """An in-process :class:`Evaluator` for the scripts that run ``flatlab eval``'s trials one by one
+    (``scripts/trace_episode.py``, ``scripts/response_probe.py``): ``policy`` as ``--policy``, ``extra`` the
+    ``--env.*`` / ``--policy.*`` flags (anything else is refused, as ``flatlab eval`` refuses it)."""
+    env_args, policy_args = _split_extra(extra)
+    path, builtin = resolve_policy(policy)
+    return Evaluator({"policy": path, "builtin": builtin, "rename_map": {}, "seed": seed,
+                      "env_args": env_args, "policy_args": policy_args})  # fmt: skip
+
+
 def main(argv=None) -> int:
     args, extra = build_parser().parse_known_args(argv)
     env_args, policy_args = _split_extra(extra)
