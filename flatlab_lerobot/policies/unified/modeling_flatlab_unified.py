@@ -343,17 +343,11 @@ class _Episode:
             other, entry, ruled_out = droop > RESPONSE_DROOP, {"index": i, "droop": round(droop, 4)}, ("A", "B")
         else:
             return False
-        cfg = self.policy.config
-        entry["response_failed"] = fire = bool(self.strategy in cfg.retry_on_response and other)
+        entry["response_failed"] = fire = bool(self.strategy in self.policy.config.retry_on_response and other)
         self.log.append(entry)
-        if not fire:
-            return False
-        k = int(cfg.retry_switch_after)
-        for s in ruled_out:
-            self.tried += [s] * (k - self.tried.count(s))
-        self.actions, self.index = None, n_stages - 1
-        self.after = self._after_hold(obs, settle=False)
-        return True
+        if fire:
+            self._end_attempt(obs, n_stages, ruled_out)
+        return fire
 
     def _unreachable(self, obs: Observed, miss: Unreachable, n_stages: int) -> None:
         """``reach_check``: the stage's start pose is out of the arm's reach (its IK, on the robot's kinematic
@@ -364,10 +358,18 @@ class _Episode:
         25 cm across the centre line at the table's back) ended 54 cm from the touch, below the table top,
         and the squeeze that followed threw the laptop beside the pad off the table."""
         self.log.append({"index": self.index, "unreachable": miss.miss})
+        self._end_attempt(obs, n_stages, self.tried[-1:])
+
+    def _end_attempt(self, obs: Observed, n_stages: int, ruled_out) -> None:
+        """End the attempt before its next stage (``reach_check``, ``retry_on_response``): with retries on the object
+        (``retry_next_strategy``, ``retry_failed``) the strategies ``ruled_out`` count as tried ``retry_switch_after``
+        times on it; where another attempt follows (``clear_all``, ``retry_failed``) the arms go home at once,
+        without, they hold."""
         self.actions, self.index = None, n_stages - 1
         cfg = self.policy.config
-        if (cfg.retry_next_strategy or cfg.retry_failed) and self.tried:
-            self.tried += [self.tried[-1]] * (int(cfg.retry_switch_after) - self.tried.count(self.tried[-1]))
+        if cfg.retry_next_strategy or cfg.retry_failed:
+            for s in ruled_out:
+                self.tried += [s] * (int(cfg.retry_switch_after) - self.tried.count(s))
         if cfg.clear_all or cfg.retry_failed:
             self.after = self._after_hold(obs, settle=False)
 
