@@ -308,9 +308,12 @@ def test_same_recipe_and_seed_give_identical_data(tiny, tmp_path):
 
 def test_two_workers_give_the_same_dataset(tiny, tmp_path):
     """Episodes simulated (and encoded) by a 2-process pool are added in index order: the data,
-    lerobot's stats and the decoded depth equal the in-process run exactly.  (RGB is lossy h264,
-    whose bitstream is not reproducible run to run here even from identical frames -- a few
-    macroblocks can come out differently -- so decoded RGB is compared with a tolerance.)"""
+    lerobot's stats and the decoded depth equal the in-process run exactly.  The stats are
+    computed on the raw frames, so equal stats mean the workers rendered the same RGB.  Decoded
+    RGB is compared with a tolerance: it is lossy h264, whose bitstream is not reproducible run
+    to run even from identical frames (a CI run saw one 32-px frame differ by 0.028 on average),
+    and each copy may be off its raw frame by the codec's own error -- measured here as up to
+    ~0.02 per frame at crf 30 -- so two copies may differ by about twice that."""
     from flatlab_lerobot.collect.collector import with_overrides
 
     recipe, root, _ = tiny
@@ -331,7 +334,7 @@ def test_two_workers_give_the_same_dataset(tiny, tmp_path):
             if k.startswith("observation.depth."):
                 np.testing.assert_array_equal(xa[k].numpy(), xb[k].numpy(), err_msg=k)
             else:
-                assert float((xa[k] - xb[k]).abs().mean()) < 0.02, k
+                assert float((xa[k] - xb[k]).abs().mean()) < 0.06, (k, i)
     assert not (tmp_path / ".t.work").exists()
 
 
