@@ -93,6 +93,7 @@ class FlatLabEnv(gym.Env):
         cell: CellConfig | None = None,
         scene: str | None = None,
         task: str | None = None,
+        desk_split: str | None = None,
     ):
         super().__init__()
         if object_id is None:
@@ -125,6 +126,7 @@ class FlatLabEnv(gym.Env):
         self.sim: FlatLabSim | None = None
         self.rig: CameraRig | None = None
         self._task_override = task
+        self.desk_split = desk_split or None  # a scenario's objects: this catalog split (None: the scenario's own)
         self._build(object_id)
         self._make_spaces()
         self.steps = 0  # control steps since the last reset
@@ -138,7 +140,7 @@ class FlatLabEnv(gym.Env):
     def _build(self, object_id: str, layout=None) -> None:
         scenario = SCENARIOS.get(self._task_override or "")
         if scenario is not None:  # several objects in one cell (a desk layout; reset draws one per seed)
-            self.layout = layout or scenario.layout(0)
+            self.layout = layout or scenario.layout(0, self.desk_split)
             object_id = self.layout.items[0].obj.id
         if object_id not in self._objects:
             raise ValueError(f"unknown object {object_id!r}; known: {sorted(self._objects)}")
@@ -262,7 +264,7 @@ class FlatLabEnv(gym.Env):
         if self.task in SCENARIOS:  # a new desk layout (objects, poses) per reset: options["desk_seed"]'s, else
             # the episode seed's (so `flatlab eval --seed S` trial t runs `flatlab desk`'s desk S + t), else a random one
             desk_seed = options.get("desk_seed", seed if seed is not None else rng.integers(2**31))
-            self._build(self.object_id, SCENARIOS[self.task].layout(int(desk_seed)))
+            self._build(self.object_id, SCENARIOS[self.task].layout(int(desk_seed), self.desk_split))
             first = self.layout.items[0]
             x, y, yaw = first.x, first.y, first.yaw
         self.placement = (float(x), float(y), float(yaw))

@@ -22,6 +22,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from flatlab_lerobot.catalog import BENCHMARK_SPLITS
 from flatlab_lerobot.env import GYM_ID, make_flatlab_env
 from flatlab_lerobot.sim.core import EE_POSE_NAMES, ENV_STATE_DIM, STATE_NAMES
 from flatlab_lerobot.sim.scene import CALIBRATION_NAMES, default_cameras
@@ -84,6 +85,9 @@ class FlatLabEnvConfig(EnvConfig):
     xy_range: float = DEFAULT_PLANAR
     # Object placement: uniform yaw in [-yaw_range_deg, yaw_range_deg] degrees.
     yaw_range_deg: float = DEFAULT_YAW_DEG
+    # clear_desk: the catalog split of the desk's five objects: test_beta (the benchmark's desk) or train (a
+    # development desk, to choose a policy's switches on without looking at test objects), or test_alpha.
+    desk_split: str = "test_beta"
     # Render the camera images (false: no observation.images.*; faster for policies that do not look).
     obs_pixels: bool = True
     # Compute the point clouds (false: no observation.pointcloud / observation.object_pointcloud).
@@ -155,6 +159,7 @@ class FlatLabEnvConfig(EnvConfig):
             raise EnvConfigError(f"--env.xy_range={self.xy_range!r}: must be in [0, 0.2] m")
         if not 0.0 <= self.yaw_range_deg <= 180.0:
             raise EnvConfigError(f"--env.yaw_range_deg={self.yaw_range_deg!r}: must be in [0, 180]")
+        _choice("desk_split", self.desk_split, BENCHMARK_SPLITS)
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
         """As lerobot's default, with two differences.  Each sub-env is wrapped in lerobot's
@@ -203,6 +208,7 @@ class FlatLabEnvConfig(EnvConfig):
             "action_mode": self.action_mode,
             "xy_range": self.xy_range,
             "yaw_range_deg": self.yaw_range_deg,
+            "desk_split": self.desk_split,
             "episode_length": self.episode_length,
             "control_dt": 1.0 / self.fps,
             "obs_pixels": self.obs_pixels,

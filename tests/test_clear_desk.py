@@ -190,3 +190,28 @@ def test_env_task_clear_desk():
         assert r == 0.0 and not term and trunc and not info["is_success"]
     finally:
         env.close()
+
+
+def test_development_desk_on_train_objects():
+    """``--env.desk_split=train`` (``flatlab desk --split train``): the same desk distribution drawn from Train's
+    rigid objects, to choose a policy's switches on without looking at the Test-beta desk; the default stays the
+    benchmark's Test-beta desk, and a bad split is an error naming the flag."""
+    from dataclasses import replace
+
+    from flatlab_lerobot.env import FlatLabEnv
+    from flatlab_lerobot.lerobot_env import EnvConfigError, FlatLabEnvConfig
+
+    train = SCENARIOS["clear_desk"].layout(3, "train")
+    assert train == sample_desk(3, replace(CFG, split="train")) != sample_desk(3, CFG)
+    assert all(it.obj.split == "train" for it in train.items) and len({it.obj.category for it in train.items}) == 5
+    assert sorted(it.obj.strategy for it in train.items) == ["A", "A", "A", "B", "B"]
+    assert SCENARIOS["clear_desk"].layout(3) == sample_desk(3, CFG)
+    assert FlatLabEnvConfig(task="clear_desk").gym_kwargs["desk_split"] == "test_beta"
+    with pytest.raises(EnvConfigError, match="desk_split='trian'.*did you mean train"):
+        FlatLabEnvConfig(task="clear_desk", desk_split="trian")
+    env = FlatLabEnv(task="clear_desk", desk_split="train", obs_pixels=False, obs_pointcloud=False, episode_length=5)
+    try:
+        env.reset(seed=3)
+        assert env.layout == train and env.sim.obj.id == train.items[0].obj.id
+    finally:
+        env.close()

@@ -36,6 +36,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="flatlab desk", description=__doc__.split("\n\n")[0])
     ap.add_argument("--policy", default="oracle", help=f"one of {', '.join(POLICIES)} (default oracle)")
     ap.add_argument("--seeds", default="0-29", help="layout seeds: '0-29', '3,5,8' (default 0-29)")
+    ap.add_argument("--split", default="test_beta", choices=["train", "test_alpha", "test_beta"],
+                    help="catalog split of the desk's objects (default test_beta, the benchmark's desk; train: a "
+                         "development desk)")
     ap.add_argument("--out", type=Path, required=True, help="JSON to write (finished desks go to <out>.jsonl)")
     a = ap.parse_args(argv)
     if a.policy not in POLICIES:
@@ -56,14 +59,14 @@ def main(argv=None) -> int:
                 r = json.loads(line)
             except json.JSONDecodeError:
                 continue  # a half-written last line
-            if r.get("policy") == a.policy:
+            if r.get("policy") == a.policy and r.get("split", "test_beta") == a.split:
                 done[r["seed"]] = r
     t0 = time.perf_counter()
     with open(partial, "a") as f:
         for s in seeds:
             if s in done:
                 continue
-            r = run_scenario("clear_desk", s, POLICIES[a.policy])
+            r = run_scenario("clear_desk", s, POLICIES[a.policy], a.split)
             r = {"policy": a.policy, **{k: v for k, v in r.items() if k != "objects"},
                  "objects": [{k: v for k, v in o.items() if isinstance(v, (str, int, float, bool, type(None)))}
                              for o in r["objects"]]}  # fmt: skip
@@ -75,9 +78,9 @@ def main(argv=None) -> int:
     per = [done[s] for s in seeds]
     n_ok = sum(bool(r["success"]) for r in per)
     res = {
-        "what": "clear_desk (five rigid Test-beta objects, one cell) with the scripted expert",
+        "what": f"clear_desk (five rigid {a.split} objects, one cell) with the scripted expert",
         "command": "flatlab desk " + " ".join(sys.argv[1:] if argv is None else argv),
-        "policy": a.policy, "seeds": seeds, "success": n_ok, "trials": len(per),
+        "policy": a.policy, "split": a.split, "seeds": seeds, "success": n_ok, "trials": len(per),
         "rate": n_ok / len(per) if per else None,
         "cleared_mean": sum(r["cleared"] for r in per) / len(per) if per else None,
         "wall_s_this_run": round(time.perf_counter() - t0, 1),

@@ -21,7 +21,7 @@ runs one with the scripted expert and returns its metrics.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -296,8 +296,14 @@ class Scenario:
         """Control steps (10 Hz): the sum of the per-object budgets."""
         return self.reset.episode_length
 
-    def layout(self, seed: int) -> DeskLayout:
-        return sample_desk(seed, self.reset)
+    def layout(self, seed: int, split: str | None = None) -> DeskLayout:
+        """The layout of ``seed``; ``split``: the catalog split its objects come from (default
+        ``reset.split``, Test-beta: the benchmark's desk; ``train``: a development desk on which
+        a policy's switches can be chosen without looking at test objects)."""
+        return sample_desk(seed, self.config(split))
+
+    def config(self, split: str | None = None) -> DeskConfig:
+        return self.reset if split in (None, self.reset.split) else replace(self.reset, split=split)
 
 
 def _clear_desk(sim, ctx):
@@ -343,18 +349,21 @@ def mean_squared_jerk(tcp: np.ndarray, dt: float) -> float:
     return float(np.mean(np.sum(jerk**2, axis=-1)))
 
 
-def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert") -> dict:
+def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert", split: str | None = None) -> dict:
     """One episode of a scenario on the layout of ``seed``, with the scripted expert ("expert":
     each object's labelled strategy; "A"/"B": that one for every object; None: no action).
+    ``split``: the catalog split of the desk's objects (default the scenario's, Test-beta).
     Returns plain-JSON metrics: success, objects cleared / in the layout, per-object results
     (lifted, cleared, steps), time/steps to completion, TCP jerk, wall time."""
     sc = SCENARIOS[scenario_id]
-    ep = run_desk_episode(seed, strategy, sc.reset)
+    config = sc.config(split)
+    ep = run_desk_episode(seed, strategy, config)
     success = any(ep.success)
     n = ep.success.index(True) + 1 if success else len(ep.success)
     return {
         "scenario": scenario_id,
         "seed": seed,
+        "split": config.split,
         "strategy": strategy,
         "object_ids": ep.object_ids,
         "success": success,
