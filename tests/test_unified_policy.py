@@ -189,6 +189,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006", "continue_a_preapproach_line": "true",
       "max_push_passes": "1"},
+     {"strategy": "A", "continue_from_hand": "AC", "a_side_arms": "true", "continue_a_preapproach_line": "true"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
       "continue_c_pinch_centre": "true"},
      {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
@@ -1261,14 +1262,17 @@ def test_retry_rank_first_sight_keeps_the_ranking_of_the_untouched_object(tiny, 
         FlatLabUnifiedConfig(retry_rank="last")
 
 
-@pytest.mark.parametrize("switch", [False, True])
+@pytest.mark.parametrize("switch", ["", "contact_a_pusher_side", "a_side_arms"])
 def test_a_pusher_side_pushes_with_the_arm_on_the_seen_objects_side(tiny, switch):
-    """contact_a_pusher_side: A's push passes are commanded to the arm on the seen object's side (the expert's
-    rule), the executor's other arm's motion mirrored onto it, chosen once per attempt; without the switch
-    the executor's arm pushes (here forced to the far one)."""
+    """contact_a_pusher_side (observed contact) and a_side_arms (learned poses, the desk's objects far off the centre
+    line): A's push passes are commanded to the arm on the seen object's side (the expert's rule), the executor's
+    other arm's motion mirrored onto it, chosen once per attempt; without the switch the executor's arm pushes (here
+    forced to the far one)."""
     from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, arm_on_side
 
-    pol = _load(tiny["artifact"], strategy="A", contact="observed", contact_a_pusher_side=str(switch).lower())
+    kw = {"contact": "observed", "contact_a_pusher_side": "true"} if switch == "contact_a_pusher_side" else {}
+    kw.update({"a_side_arms": "true", "continue_from_hand": "AC"} if switch == "a_side_arms" else {})
+    pol = _load(tiny["artifact"], strategy="A", **kw)
     env = _env()
     obs, _ = env.reset(seed=3)
     pts = obs["object_pointcloud"].astype(float)
@@ -1294,6 +1298,10 @@ def test_a_pusher_side_pushes_with_the_arm_on_the_seen_objects_side(tiny, switch
     assert all(d["arms"] == ([side] if switch else [far]) for d in push), push
     if switch:
         assert all(d["a_arm"] == {"learned": [far], "side": side, "mirrored_from": far} for d in push)
+    else:
+        assert not any("a_arm" in d for d in push)
+    with pytest.raises(ValueError, match="a_side_arms=true is for --policy.contact=learned"):
+        FlatLabUnifiedConfig(a_side_arms=True, contact="observed")
 
 
 def test_retry_switch_after_gives_each_strategy_that_many_attempts(tiny, monkeypatch):

@@ -256,6 +256,14 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # book_paperback_novel (seed 1001) and disk_vinyl_lp (seed 1001), the transit's joint-space path swung the turning
     # hand down onto the pushed object and swept it off the table, where the expert's transit passed above it
     continue_a_preapproach_line: bool = False
+    # A's stages run by the arm on the seen object's side (right at y <= 0, as the expert's pusher and grasping arm):
+    # the pusher decided at the attempt's first touch, the grasping arm at its pre-approach, from the object cloud seen
+    # then; the executor's arm where it chose that one, else its most active arm's motion mirrored across the seen
+    # centre line (contact=observed's contact_a_pusher_side and contact_a_grasp arms, observed_contact.a_side_arms;
+    # learned poses otherwise; reads the object cloud).  On the desk (stop 69) every learned A attempt whose touch was
+    # out of reach had the executor's arm on the far side of an object 18-31 cm off the centre line, where single
+    # objects lie within 5 cm of it
+    a_side_arms: bool = False
     # with contact=observed: A's and B's stages that the expert starts where the hand is (A's press, slide,
     # release, grasp, lift; B's squeeze, lift) start at the commanded hand with their learned displacement,
     # so no transit moves a hand that presses or holds the object (observed_contact.py)
@@ -328,6 +336,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_grasp_heights and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_grasp_heights=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.a_side_arms and self.contact != "learned":
+            raise ValueError("--policy.a_side_arms=true is for --policy.contact=learned (with observed, use "
+                             f"--policy.contact_a_pusher_side and --policy.contact_a_grasp), got {self.contact!r}")
         if self.continue_a_preapproach_line and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_preapproach_line=true needs A in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_sheet_lift and "A" not in self.continue_from_hand:

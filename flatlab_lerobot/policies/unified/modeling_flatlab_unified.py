@@ -193,7 +193,7 @@ class _Episode:
         self.after = None  # clear_all: the carry-off / go-home / settle actions after the final hold
         self.lift_arms: tuple[str, ...] = ()  # the arms the last posed stage commanded (they hold what was lifted)
         self.a_side: str | None = None  # contact_a_grasp: A's grasp arm by the seen side, decided at the pre-approach
-        self.a_pusher: str | None = None  # contact_a_pusher_side: A's pushing arm by the seen side, decided at the first touch
+        self.a_pusher: str | None = None  # contact_a_pusher_side / a_side_arms: A's pushing arm by the seen side, decided at the first touch
         self.obs: Observed | None = None
         self.started = False  # the current attempt has its strategy
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
@@ -503,6 +503,9 @@ class _Episode:
             arms, source, y_centre, arm_log = self._a_grasp_arms(arms, prob, obs)
         elif observed and self.policy.config.contact_a_pusher_side and self.strategy == "A" and self.index < A_PREAPPROACH:
             arms, source, y_centre, arm_log = self._a_pusher_arms(arms, prob, obs)
+        elif self.policy.config.a_side_arms and self.strategy == "A":  # learned poses, the arm on the seen side
+            side_arms = self._a_grasp_arms if self.index >= A_PREAPPROACH else self._a_pusher_arms
+            arms, source, y_centre, arm_log = side_arms(arms, prob, obs)
         commanded_fk = functools.cache(lambda: self.expert.fk(self.q))  # once per stage, only if a rule asks
         continued = self.strategy in self.policy.config.continue_from_hand and spec.start == "current"  # learned only
         ruled = self.strategy == "C" and bool(self.policy.config.continue_c_heights)  # heights by a rule (learned only)
