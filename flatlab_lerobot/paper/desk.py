@@ -1,6 +1,7 @@
 """``flatlab desk``: the five-object desk (the ``clear_desk`` scenario) with the scripted expert.
 
-Each seed draws one desk layout (five rigid Test-beta objects, :mod:`flatlab_lerobot.tasks.clear_desk`)
+Each seed draws one desk layout (five rigid Test-beta objects, :mod:`flatlab_lerobot.tasks.clear_desk`;
+``--split train``: Train objects, a development desk on which a policy's desk switches are chosen)
 and runs one physics episode in which every object is cleared in turn with its labelled strategy
 (``--policy oracle``) or one fixed strategy (``slide_only``: A, ``lift_only``: B).  Success: all five
 objects lifted (the 2-s hold rule) and none left on the table.  The paper reports 73.3 % for its
