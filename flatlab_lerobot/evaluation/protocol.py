@@ -282,8 +282,8 @@ def desk_outcome(env, policy) -> dict:
     (lifted and off the table), and the policy's attempts (strategy per attempt) when it reports them."""
     from flatlab_lerobot.tasks.clear_desk import cleared
 
-    out = {"split": env.layout.items[0].obj.split, "objects": env.layout.object_ids, "lifted": [bool(v) for v in env.sim.lifted],
-           "cleared": [bool(v) for v in cleared(env.sim)]}  # fmt: skip
+    out = {"split": env.layout.items[0].obj.split, "objects": env.layout.object_ids,
+           "lifted": [bool(v) for v in env.sim.lifted], "cleared": [bool(v) for v in cleared(env.sim)]}  # fmt: skip
     attempts = getattr(policy, "attempts", None)
     if attempts:
         out["attempts"] = attempts[0]

@@ -22,6 +22,8 @@ import sys
 import time
 from pathlib import Path
 
+from flatlab_lerobot.catalog import BENCHMARK_SPLITS
+
 POLICIES = {"oracle": "expert", "slide_only": "A", "lift_only": "B"}
 
 
@@ -37,7 +39,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="flatlab desk", description=__doc__.split("\n\n")[0])
     ap.add_argument("--policy", default="oracle", help=f"one of {', '.join(POLICIES)} (default oracle)")
     ap.add_argument("--seeds", default="0-29", help="layout seeds: '0-29', '3,5,8' (default 0-29)")
-    ap.add_argument("--split", default="test_beta", choices=["train", "test_alpha", "test_beta"],
+    ap.add_argument("--split", default="test_beta", choices=BENCHMARK_SPLITS,
                     help="catalog split of the desk's objects (default test_beta, the benchmark's desk; train: a "
                          "development desk)")
     ap.add_argument("--out", type=Path, required=True, help="JSON to write (finished desks go to <out>.jsonl)")

@@ -193,7 +193,8 @@ class _Episode:
         self.after = None  # clear_all: the carry-off / go-home / settle actions after the final hold
         self.lift_arms: tuple[str, ...] = ()  # the arms the last posed stage commanded (they hold what was lifted)
         self.a_side: str | None = None  # contact_a_grasp: A's grasp arm by the seen side, decided at the pre-approach
-        self.a_pusher: str | None = None  # contact_a_pusher_side / a_side_arms: A's pushing arm by the seen side, decided at the first touch
+        # contact_a_pusher_side / a_side_arms: A's pushing arm by the seen side, decided at the first touch
+        self.a_pusher: str | None = None
         self.obs: Observed | None = None
         self.started = False  # the current attempt has its strategy
         self.attempts: list[str] = []  # clear_all: the strategy of every attempt so far
