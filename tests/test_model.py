@@ -65,3 +65,25 @@ def test_reset_places_the_object(object_id):
         np.testing.assert_allclose(pos[:2], [x, y], atol=2e-3)
         np.testing.assert_allclose(2 * np.arctan2(quat[3], quat[0]), yaw, atol=2e-2)
         np.testing.assert_allclose(sim.object_extent()[:2], get_object(object_id).size[:2], atol=2e-3)
+
+
+def test_finger_pads_sit_flush_on_their_fingers():
+    """No gap between a finger's pad and its box where a thin object could wedge, and the pads'
+    inner faces meet at a closed gripper (the gripper width is the distance between the pads)."""
+    from flatlab_lerobot.sim.scene import CellConfig, build_model
+
+    m = build_model(CellConfig(), None)
+    fingers = [b for b in range(m.nbody) if m.body(b).name.endswith("finger")]
+    assert len(fingers) == 4
+    for b in fingers:
+        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+        pads = [g for g in geoms if m.geom(g).name.endswith("pad")]
+        boxes = [g for g in geoms if g not in pads]
+        assert len(pads) == 1 and len(boxes) == 1, m.body(b).name
+        pad, box = pads[0], boxes[0]
+        side = np.sign(m.geom_pos[box][1])  # the box lies on the finger's outer side
+        pad_outer = side * m.geom_pos[pad][1] + m.geom_size[pad][1]
+        pad_inner = side * m.geom_pos[pad][1] - m.geom_size[pad][1]
+        box_inner = side * m.geom_pos[box][1] - m.geom_size[box][1]
+        assert pad_outer >= box_inner - 1e-9, f"{m.body(b).name}: {1e3 * (box_inner - pad_outer):.1f} mm gap"
+        assert abs(pad_inner) < 1e-9

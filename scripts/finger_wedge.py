@@ -1,0 +1,99 @@
+"""Count the control steps where an object is wedged *inside* a finger: touching a finger's body
+box and the same finger's pad with opposed contact normals, i.e. caught in the gap between the two.
+
+    python scripts/finger_wedge.py --policy oracle --objects disk_compact_disc book_a5_notebook --trials 5
+
+Runs ``flatlab eval``'s trials exactly (its Evaluator, seed ``--seed`` + trial) and prints one JSON line
+per trial: G, failure reason, the steps with a wedged object, and whether the object was wedged on the
+step the hold rule was first met (a lift the finger's gap, not a grasp, held).  Reads the simulator's
+contacts for the person measuring; the policy never sees them.  Extra arguments after ``--`` go to the
+evaluator as in ``flatlab eval``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import mujoco
+import numpy as np
+
+from flatlab_lerobot.catalog import benchmark_objects
+from flatlab_lerobot.env import FlatLabEnv
+from flatlab_lerobot.evaluation.protocol import evaluator_for
+
+
+def finger_parts(model) -> dict[int, tuple[set[int], set[int]]]:
+    """Per finger body id: (its box geoms, its pad geoms)."""
+    parts: dict[int, tuple[set[int], set[int]]] = {}
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        if not model.body(b).name.endswith("finger"):
+            continue
+        box, pad = parts.setdefault(b, (set(), set()))
+        (pad if (model.geom(g).name or "").endswith("pad") else box).add(g)
+    return parts
+
+
+def wedged(sim, parts) -> bool:
+    """Is any object caught between a finger's box and its pad (opposed normals, finger -> object)?"""
+    m, d = sim.model, sim.data
+    obj_geoms = set(np.concatenate([o.geoms for o in sim.objects]).tolist())
+    normals: dict[tuple[int, str], list[np.ndarray]] = {}
+    for k in range(d.ncon):
+        c = d.contact[k]
+        g1, g2 = int(c.geom[0]), int(c.geom[1])
+        for fg, og, sign in ((g1, g2, 1.0), (g2, g1, -1.0)):
+            if og not in obj_geoms:
+                continue
+            b = int(m.geom_bodyid[fg])
+            if b not in parts:
+                continue
+            kind = "pad" if fg in parts[b][1] else "box"
+            normals.setdefault((b, kind), []).append(sign * np.array(c.frame[:3]))
+    for (b, kind), ns in normals.items():
+        if kind == "box" and (b, "pad") in normals:
+            if min(float(n @ p) for n in ns for p in normals[(b, "pad")]) < -0.5:
+                return True
+    return False
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policy", required=True)
+    ap.add_argument("--objects", nargs="*", default=None, help="catalog ids (default: all benchmark objects)")
+    ap.add_argument("--trials", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=1000)
+    args, extra = ap.parse_known_args(argv)
+    ev = evaluator_for(args.policy, args.seed, [a for a in extra if a != "--"])
+    objects = args.objects or [o.id for o in benchmark_objects()]
+    state: dict = {}
+    step = FlatLabEnv.step
+
+    def traced(env, action):
+        out = step(env, action)
+        s = env.sim
+        if state.get("model") is not s.model:
+            state.update(model=s.model, parts=finger_parts(s.model))
+        w = wedged(s, state["parts"])
+        state["wedged"] += int(w)
+        if s.lifted.any() and state["at_lift"] is None:
+            state["at_lift"] = w
+        return out
+
+    FlatLabEnv.step = traced
+    try:
+        for oid in objects:
+            state.update(wedged=0, at_lift=None)
+            for t, rec in enumerate(ev.run_object(oid, list(range(args.trials)))):
+                print(json.dumps({"object_id": oid, "trial": t, "G": rec["G"], "failure_reason": rec["failure_reason"],
+                                  "wedged_steps": state["wedged"], "wedged_at_lift": state["at_lift"]}), flush=True)
+                state.update(wedged=0, at_lift=None)
+    finally:
+        FlatLabEnv.step = step
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
