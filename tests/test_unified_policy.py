@@ -1530,3 +1530,23 @@ def test_builder_checks_that_submodels_saw_train_objects_only(tiny, tmp_path):
         unified_build.build(tiny["generator"], tiny["executor"], tmp_path / "x4", **quiet)
     with pytest.raises(unified_build.UnifiedBuildError, match="flatlab_strategy"):  # the sub-models swapped
         unified_build.build(ex["ok_ex"], gen["ok_gen"], tmp_path / "x5", **quiet)
+
+
+def test_carry_box_centre_takes_the_middle_of_the_seen_extent():
+    """carry_box_centre: the carry-off's centre is the middle of the cloud's extent, not the mean that the
+    side the cameras see densest pulls (a held keyboard_compact, Train desk 6: mean 4 cm behind the centre),
+    so B's 'centre past the edge' carry lets go of the object past the edge."""
+    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import _extent_middle, _points_mean
+    from flatlab_lerobot.tasks.clear_desk import CARRY_MARGIN, carry_displacements
+
+    rng = np.random.default_rng(0)
+    flat = rng.uniform([-0.04, -0.1, 0.92], [0.26, 0.1, 0.93], (1000, 3))
+    near = rng.uniform([0.16, -0.1, 0.92], [0.26, 0.1, 0.93], (1500, 3))  # the densely seen front part
+    pts = np.vstack([flat, near])
+    assert _points_mean(pts)[0] > 0.15
+    np.testing.assert_allclose(_extent_middle(pts)[:2], [0.11, 0.0], atol=2e-3)
+    tip = carry_displacements(pts, _extent_middle(pts), 0.30, ("left", "right"))[3]  # the centre past the edge
+    assert 0.11 + tip[0] == pytest.approx(0.30 + CARRY_MARGIN, abs=2e-3)
+    with pytest.raises(ValueError, match="carry_box_centre=true acts on the carry-off"):
+        FlatLabUnifiedConfig(carry_box_centre=True)
+    FlatLabUnifiedConfig(carry_box_centre=True, clear_all=True)

@@ -132,6 +132,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # shows now (the next object, or the same one after a failed attempt), while it lies on the table
     clear_all: bool = False
     settle_s: float = 1.0
+    # with clear_all or retry_failed: the carry-off takes the held object's centre as the middle of the object
+    # cloud's extent (x, y), not the mean of its points.  The seen points crowd where the cameras see the object
+    # best: on a Train development desk (desk 6, stop 70) a B-held keyboard_compact's cloud spanned its true extent
+    # within 3 mm but its mean lay 4 cm behind its centre, so B's carry let go of it short of the edge and it fell
+    # back onto the table, twice
+    carry_box_centre: bool = False
     # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
     # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
     retry_next_strategy: bool = False
@@ -336,6 +342,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_c_heights needs C in --policy.continue_from_hand (e.g. AC)")
         if self.continue_a_grasp_heights and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_a_grasp_heights=true needs A in --policy.continue_from_hand (e.g. AC)")
+        if self.carry_box_centre and not (self.clear_all or self.retry_failed):
+            raise ValueError("--policy.carry_box_centre=true acts on the carry-off after a lift: it needs "
+                             "--policy.clear_all=true or --policy.retry_failed=true")
         if self.a_side_arms and self.contact != "learned":
             raise ValueError("--policy.a_side_arms=true is for --policy.contact=learned (with observed, use "
                              f"--policy.contact_a_pusher_side and --policy.contact_a_grasp), got {self.contact!r}")

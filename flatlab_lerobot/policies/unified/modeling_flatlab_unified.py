@@ -153,6 +153,18 @@ def _rotmat(q) -> np.ndarray:
 _UNTAKEN = object()
 
 
+def _points_mean(pts: np.ndarray) -> np.ndarray:
+    """The mean of a cloud's points (3,)."""
+    return np.asarray(pts, float).mean(0)
+
+
+def _extent_middle(pts: np.ndarray) -> np.ndarray:
+    """The middle of a cloud's extent in x and y, its mean height (3,): unlike the mean, not pulled towards
+    where the cameras see the object densest (``carry_box_centre``)."""
+    pts = np.asarray(pts, float)
+    return np.r_[(pts[:, :2].min(0) + pts[:, :2].max(0)) / 2, pts[:, 2].mean()]
+
+
 class _Lookahead:
     """An iterator that can say whether it has a next item (by taking that item one call early)."""
 
@@ -384,8 +396,9 @@ class _Episode:
         arms = self.lift_arms or ARMS
         self.log.append({"index": self.index, "after": "carry" if aloft else "home", "arms": list(arms)})
         if aloft:
-            cands = carry_displacements(pts, pts.mean(0), obs.edge_x, arms)
-            centre = lambda: (self.obs.object_points.mean(0) if len(self.obs.object_points) else pts.mean(0))  # noqa: E731
+            middle = _extent_middle if self.policy.config.carry_box_centre else _points_mean
+            cands = carry_displacements(pts, middle(pts), obs.edge_x, arms)
+            centre = lambda: middle(self.obs.object_points if len(self.obs.object_points) else pts)  # noqa: E731
             actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip)
         else:
             actions = go_home(self.q, self.grip)
