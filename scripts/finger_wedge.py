@@ -1,5 +1,5 @@
-"""Count the control steps where an object is wedged *inside* a finger: touching a finger's body
-box and the same finger's pad with opposed contact normals, i.e. caught in the gap between the two.
+"""Count the control steps where an object is wedged *inside* a finger: touching a finger's box and the
+same finger's pad on the faces that look into the gap between the two (the finger model until stop 70).
 
     python scripts/finger_wedge.py --policy oracle --objects disk_compact_disc book_a5_notebook --trials 5
 
@@ -37,25 +37,36 @@ def finger_parts(model) -> dict[int, tuple[set[int], set[int]]]:
 
 
 def wedged(sim, parts) -> bool:
-    """Is any object caught between a finger's box and its pad (opposed normals, finger -> object)?"""
+    """Is any object (rigid body or cloth flex) caught between a finger's box and its pad: touching the
+    pad's back face and the box's inner face, both contact normals (finger -> object) pointing into the
+    slot between them?  A cloth pinched between the pads and wrapped round a finger's outside is not."""
     m, d = sim.model, sim.data
     obj_geoms = set(np.concatenate([o.geoms for o in sim.objects]).tolist())
+    obj_flexes = {o.flex_id for o in sim.objects if o.flex_id >= 0}  # a cloth's side of a contact is its flex
     normals: dict[tuple[int, str], list[np.ndarray]] = {}
     for k in range(d.ncon):
         c = d.contact[k]
         g1, g2 = int(c.geom[0]), int(c.geom[1])
-        for fg, og, sign in ((g1, g2, 1.0), (g2, g1, -1.0)):
-            if og not in obj_geoms:
+        f1, f2 = int(c.flex[0]), int(c.flex[1])
+        for fg, og, of, sign in ((g1, g2, f2, 1.0), (g2, g1, f1, -1.0)):
+            if og not in obj_geoms and of not in obj_flexes:
+                continue
+            if fg < 0:
                 continue
             b = int(m.geom_bodyid[fg])
             if b not in parts:
                 continue
             kind = "pad" if fg in parts[b][1] else "box"
             normals.setdefault((b, kind), []).append(sign * np.array(c.frame[:3]))
-    for (b, kind), ns in normals.items():
-        if kind == "box" and (b, "pad") in normals:
-            if min(float(n @ p) for n in ns for p in normals[(b, "pad")]) < -0.5:
-                return True
+    for b, (box, _) in parts.items():
+        if (b, "pad") not in normals or (b, "box") not in normals:
+            continue
+        # the finger's closing axis, pointing from the pad to the box (outwards): the slot between them
+        out = d.xmat[b].reshape(3, 3)[:, 1] * np.sign(m.geom_pos[next(iter(box))][1])
+        pad_out = any(float(n @ out) > 0.5 for n in normals[(b, "pad")])  # the pad's back face touches it
+        box_in = any(float(n @ out) < -0.5 for n in normals[(b, "box")])  # the box's inner face touches it
+        if pad_out and box_in:
+            return True
     return False
 
 
