@@ -165,6 +165,21 @@ def _has(s: Status | None) -> bool:
     return s is not None and s.record is not None and s.state in ("done", "earlier", "stale")
 
 
+# since this date every evaluation runs on the finger model whose pads sit flush on their fingers (stop 70); a record
+# made before it ran with a 2-mm gap between pad and finger box that could hold a thin object (docs/expert.md)
+FLUSH_PADS_SINCE = "2026-12-05T21:10"
+OLD_FINGERS_NOTE = ("† measured before stop 70, on the finger model with a 2-mm gap between each pad and its finger box, "
+                    "where a thin object could wedge (docs/expert.md); not re-run on the flush pads.")
+
+
+def _old_fingers(s: Status | None) -> bool:
+    """Was this evaluation record made on the finger model before the flush pads (``FLUSH_PADS_SINCE``)?"""
+    if not _has(s):
+        return False
+    created = (s.record.get("paper_stage") or {}).get("created") or s.record.get("created")
+    return not created or str(created) < FLUSH_PADS_SINCE
+
+
 def _state(s: Status | None) -> str:
     if s is None:
         return "not in this preset"
@@ -217,9 +232,12 @@ def table1(ctx: Context, st: dict[str, Status]) -> list[str]:
         text = ROW_TEXT.get(label, label)
         if name and RETRY_FLAG in ctx.stages[name].cmd:  # the stage's own flags say whether it retries
             text = f"{text[:-1]}; a visibly failed lift retried, not in the paper)" if text.endswith(")") else f"{text} (retrying)"
-        lines.append(f"| {text} | {' | '.join(_g_cells(s, p))} | {_state(s)} | {f'`{name}`' if name else '–'} |")
+        lines.append(f"| {text}{' †' if _old_fingers(s) else ''} | {' | '.join(_g_cells(s, p))} | {_state(s)} | "
+                     f"{f'`{name}`' if name else '–'} |")
         if name:
             used.append(name)
+    if any("† |" in line for line in lines):
+        lines += ["", OLD_FINGERS_NOTE]
     lines += ["", "The paper's Slide and Lift are fixed-strategy methods; we report both the scripted expert with the "
               "strategy fixed and the learned unified policy with the strategy fixed. The paper has no ACT row.", ""]
     return lines + earlier_runs(ctx, st, used) + _commands(ctx, st, used)
@@ -438,7 +456,8 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
-        lines.append(f"| {text} | {ours} | {rate} | {_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
+        lines.append(f"| {text}{' †' if _old_fingers(s) else ''} | {ours} | {rate} | "
+                     f"{_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
                      f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
     # desk stages a newer one of the same row superseded (the preset's first wins), or of a row of their own: below,
@@ -450,7 +469,8 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         per = desk_objects(s.record) if _has(s) else None
         lines.append(f"| {rep.get('text') or rep.get('row') or n} | {f'{k_n[0]}/{k_n[1]}' if k_n else '–'} | "
                      f"{_pct(*k_n) if k_n else '–'} | – | {'–' if per is None else f'{per:.2f}'} | {_state(s)} | `{n}` |")  # fmt: skip
-    return [*lines, "", *_commands(ctx, st, [*rows.values(), *earlier])]
+    note = ["", OLD_FINGERS_NOTE] if any("† |" in line for line in lines) else []
+    return [*lines, *note, "", *_commands(ctx, st, [*rows.values(), *earlier])]
 
 
 def tables(ctx: Context, st: dict[str, Status] | None = None, plots: Path | None = None, page_dir: Path | None = None) -> str:
@@ -527,16 +547,21 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
         v = grasp(rec)["split"].get(x)
         return f"**{_pct(*v['G'])} %**" if v else "–"
 
-    lines.append(row("FlatLab (learned) grasp success G", g.get("FlatLab"), g_fmt, pt1["FlatLab"]))
+    def g_row(text, name, paper):  # marked where the record predates the flush finger pads
+        return row(f"{text}{' †' if _old_fingers(st.get(name) if name else None) else ''}", name, g_fmt, paper)
+
+    lines.append(g_row("FlatLab (learned) grasp success G", g.get("FlatLab"), pt1["FlatLab"]))
     if "FlatLab, one attempt" in g:  # the row without the retries the paper's method does not make
-        lines.append(row("FlatLab, one attempt per episode, G", g["FlatLab, one attempt"], g_fmt, pt1["FlatLab"]))
+        lines.append(g_row("FlatLab, one attempt per episode, G", g["FlatLab, one attempt"], pt1["FlatLab"]))
     if "3D Diffusion Policy" in g:  # the paper's strongest end-to-end baseline
-        lines.append(row("3D Diffusion Policy (end-to-end) G", g["3D Diffusion Policy"], g_fmt, pt1["3D Diffusion Policy"]))
-    lines.append(row("scripted oracle grasp success G", g.get("oracle"), g_fmt, ["–"] * 3))
+        lines.append(g_row("3D Diffusion Policy (end-to-end) G", g["3D Diffusion Policy"], pt1["3D Diffusion Policy"]))
+    lines.append(g_row("scripted oracle grasp success G", g.get("oracle"), ["–"] * 3))
     lines.append(row("strategy generator accuracy", s_.get("Full"),
                      lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
     lines.append(row("executor grasp P-MSE (m²)", e.get("Full"),
                      lambda r, x: f"{executor(r)[x]['p_mse']:.4f}" if x in executor(r) else "–", [f"{v:.4f}" for v in pp]))
+    if any(" † |" in line for line in lines):
+        lines += ["", OLD_FINGERS_NOTE]
     return "\n".join(lines) + "\n"
 
 
