@@ -180,6 +180,16 @@ def _old_fingers(s: Status | None) -> bool:
     return not created or str(created) < FLUSH_PADS_SINCE
 
 
+def _mark(s: Status | None) -> str:
+    """A row label's suffix: " †" where the record predates the flush finger pads."""
+    return " †" if _old_fingers(s) else ""
+
+
+def _fingers_note(lines: list[str]) -> list[str]:
+    """The note that explains the † mark, for a table where a row carries it (else nothing)."""
+    return ["", OLD_FINGERS_NOTE] if any(" † |" in line for line in lines) else []
+
+
 def _state(s: Status | None) -> str:
     if s is None:
         return "not in this preset"
@@ -232,12 +242,11 @@ def table1(ctx: Context, st: dict[str, Status]) -> list[str]:
         text = ROW_TEXT.get(label, label)
         if name and RETRY_FLAG in ctx.stages[name].cmd:  # the stage's own flags say whether it retries
             text = f"{text[:-1]}; a visibly failed lift retried, not in the paper)" if text.endswith(")") else f"{text} (retrying)"
-        lines.append(f"| {text}{' †' if _old_fingers(s) else ''} | {' | '.join(_g_cells(s, p))} | {_state(s)} | "
+        lines.append(f"| {text}{_mark(s)} | {' | '.join(_g_cells(s, p))} | {_state(s)} | "
                      f"{f'`{name}`' if name else '–'} |")
         if name:
             used.append(name)
-    if any("† |" in line for line in lines):
-        lines += ["", OLD_FINGERS_NOTE]
+    lines += _fingers_note(lines)
     lines += ["", "The paper's Slide and Lift are fixed-strategy methods; we report both the scripted expert with the "
               "strategy fixed and the learned unified policy with the strategy fixed. The paper has no ACT row.", ""]
     return lines + earlier_runs(ctx, st, used) + _commands(ctx, st, used)
@@ -456,7 +465,7 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         ours = f"{k_n[0]}/{k_n[1]}" if k_n else "–"
         rate = _pct(*k_n) if k_n else "–"
         state = _state(s) if label != "GPT-4o" else "not rebuilt (needs the OpenAI API)"
-        lines.append(f"| {text}{' †' if _old_fingers(s) else ''} | {ours} | {rate} | "
+        lines.append(f"| {text}{_mark(s)} | {ours} | {rate} | "
                      f"{_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
                      f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
@@ -469,8 +478,7 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
         per = desk_objects(s.record) if _has(s) else None
         lines.append(f"| {rep.get('text') or rep.get('row') or n} | {f'{k_n[0]}/{k_n[1]}' if k_n else '–'} | "
                      f"{_pct(*k_n) if k_n else '–'} | – | {'–' if per is None else f'{per:.2f}'} | {_state(s)} | `{n}` |")  # fmt: skip
-    note = ["", OLD_FINGERS_NOTE] if any("† |" in line for line in lines) else []
-    return [*lines, *note, "", *_commands(ctx, st, [*rows.values(), *earlier])]
+    return [*lines, *_fingers_note(lines), "", *_commands(ctx, st, [*rows.values(), *earlier])]
 
 
 def tables(ctx: Context, st: dict[str, Status] | None = None, plots: Path | None = None, page_dir: Path | None = None) -> str:
@@ -548,7 +556,7 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
         return f"**{_pct(*v['G'])} %**" if v else "–"
 
     def g_row(text, name, paper):  # marked where the record predates the flush finger pads
-        return row(f"{text}{' †' if _old_fingers(st.get(name) if name else None) else ''}", name, g_fmt, paper)
+        return row(f"{text}{_mark(st.get(name) if name else None)}", name, g_fmt, paper)
 
     lines.append(g_row("FlatLab (learned) grasp success G", g.get("FlatLab"), pt1["FlatLab"]))
     if "FlatLab, one attempt" in g:  # the row without the retries the paper's method does not make
@@ -560,9 +568,7 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
                      lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
     lines.append(row("executor grasp P-MSE (m²)", e.get("Full"),
                      lambda r, x: f"{executor(r)[x]['p_mse']:.4f}" if x in executor(r) else "–", [f"{v:.4f}" for v in pp]))
-    if any(" † |" in line for line in lines):
-        lines += ["", OLD_FINGERS_NOTE]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _fingers_note(lines)) + "\n"
 
 
 def write_page(ctx: Context, page: Path | None = None) -> Path:
