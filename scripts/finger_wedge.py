@@ -16,7 +16,6 @@ import argparse
 import json
 import sys
 
-import mujoco
 import numpy as np
 
 from flatlab_lerobot.catalog import benchmark_objects
@@ -24,15 +23,13 @@ from flatlab_lerobot.env import FlatLabEnv
 from flatlab_lerobot.evaluation.protocol import evaluator_for
 
 
-def finger_parts(model) -> dict[int, tuple[set[int], set[int]]]:
-    """Per finger body id: (its box geoms, its pad geoms)."""
+def finger_parts(sim) -> dict[int, tuple[set[int], set[int]]]:
+    """Per finger body id: (its box geoms, its pad geoms), from the sim's finger geoms (``finger_geoms``)."""
+    m = sim.model
     parts: dict[int, tuple[set[int], set[int]]] = {}
-    for g in range(model.ngeom):
-        b = int(model.geom_bodyid[g])
-        if not model.body(b).name.endswith("finger"):
-            continue
-        box, pad = parts.setdefault(b, (set(), set()))
-        (pad if (model.geom(g).name or "").endswith("pad") else box).add(g)
+    for g in np.concatenate(list(sim.finger_geoms.values())):
+        box, pad = parts.setdefault(int(m.geom_bodyid[g]), (set(), set()))
+        (pad if (m.geom(g).name or "").endswith("pad") else box).add(int(g))
     return parts
 
 
@@ -41,23 +38,22 @@ def wedged(sim, parts) -> bool:
     pad's back face and the box's inner face, both contact normals (finger -> object) pointing into the
     slot between them?  A cloth pinched between the pads and wrapped round a finger's outside is not."""
     m, d = sim.model, sim.data
-    obj_geoms = set(np.concatenate([o.geoms for o in sim.objects]).tolist())
-    obj_flexes = {o.flex_id for o in sim.objects if o.flex_id >= 0}  # a cloth's side of a contact is its flex
+    geom, flex = sim._contact_pairs()
+    # per contact side: is it one of the cell's objects (a rigid body's geom or a cloth's flex: FlatLabSim.is_object)?
+    is_obj = np.zeros(geom.shape, bool)
+    for i in range(len(sim.objects)):
+        is_obj |= sim.is_object(geom, flex, i)
     normals: dict[tuple[int, str], list[np.ndarray]] = {}
-    for k in range(d.ncon):
-        c = d.contact[k]
-        g1, g2 = int(c.geom[0]), int(c.geom[1])
-        f1, f2 = int(c.flex[0]), int(c.flex[1])
-        for fg, og, of, sign in ((g1, g2, f2, 1.0), (g2, g1, f1, -1.0)):
-            if og not in obj_geoms and of not in obj_flexes:
-                continue
-            if fg < 0:
+    for k in range(len(geom)):
+        normal = np.array(d.contact[k].frame[:3])  # from side 0 to side 1
+        for fg, other, sign in ((geom[k, 0], 1, 1.0), (geom[k, 1], 0, -1.0)):
+            if not is_obj[k, other] or fg < 0:
                 continue
             b = int(m.geom_bodyid[fg])
             if b not in parts:
                 continue
             kind = "pad" if fg in parts[b][1] else "box"
-            normals.setdefault((b, kind), []).append(sign * np.array(c.frame[:3]))
+            normals.setdefault((b, kind), []).append(sign * normal)
     for b, (box, _) in parts.items():
         if (b, "pad") not in normals or (b, "box") not in normals:
             continue
@@ -86,7 +82,7 @@ def main(argv=None) -> int:
         out = step(env, action)
         s = env.sim
         if state.get("model") is not s.model:
-            state.update(model=s.model, parts=finger_parts(s.model))
+            state.update(model=s.model, parts=finger_parts(s))
         w = wedged(s, state["parts"])
         state["wedged"] += int(w)
         if s.lifted.any() and state["at_lift"] is None:
