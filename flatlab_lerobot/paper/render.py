@@ -168,8 +168,8 @@ def _has(s: Status | None) -> bool:
 # since this date every evaluation runs on the finger model whose pads sit flush on their fingers (stop 70); a record
 # made before it ran with a 2-mm gap between pad and finger box that could hold a thin object (docs/expert.md)
 FLUSH_PADS_SINCE = "2026-12-05T21:10"
-OLD_FINGERS_NOTE = ("† measured before stop 70, on the finger model with a 2-mm gap between each pad and its finger box, "
-                    "where a thin object could wedge (docs/expert.md); not re-run on the flush pads.")
+OLD_FINGERS_NOTE = ("† measured before stop 70, on the finger model with a 2-mm gap between each pad and its "
+                    "finger box, where a thin object could wedge (docs/expert.md); not re-run on the flush pads.")
 
 
 def _old_fingers(s: Status | None) -> bool:
