@@ -1,5 +1,5 @@
 """How objects answer the unified policy's stages: per trial, the attempts, G and the ``retry_on_response``
-readings (C's fold rise after the squeeze, the droop below the table top after each of A's push passes).
+readings (C's fold rise after the squeeze and the fold still standing as the pinch begins, the droop below the table top after each of A's push passes).
 
     python scripts/response_probe.py --policy outputs/paper/cpu/unified_cpu_top_a --objects board_plywood,fabric_cotton \
         --trials 3 --out outputs/probe/c_first.jsonl -- --policy.first_attempt=C --policy.retry_failed=true ...
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from flatlab_lerobot.evaluation.protocol import evaluator_for
 
-KEYS = ("fold_rise", "droop", "retry_failed", "retry")
+KEYS = ("fold_rise", "fold_kept", "droop", "retry_failed", "retry")
 
 
 def main(argv=None) -> int:

@@ -1220,6 +1220,59 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
         FlatLabUnifiedConfig(first_attempt="D")
 
 
+@pytest.mark.parametrize("on", [False, True])
+def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch, on):
+    """retry_on_fold_lost (with retry_failed): as C's pinching hand is about to straddle the fold, the seen top's rise
+    since the attempt started is logged (fold_kept); below the switch's height at the first C attempt on the object
+    (a stiff pad whose fold lay back down flat) the attempt ends at once and C is ruled out; a standing fold goes on,
+    and so does a later C attempt.  Without the switch nothing ends early."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import C_STRADDLE
+    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    assert STAGE_SPECS["C"][C_STRADDLE - 1].primitive == "move" and STAGE_SPECS["C"][C_STRADDLE + 1].primitive == "grasp"
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
+    flat = _desk_observed(sim)
+    top = float(flat.object_points[:, 2].max())
+    fold = Observed(flat.state, flat.cell, flat.cloud, np.r_[flat.object_points, [[0.0, 0.0, top + 0.04]]])
+
+    def episode():
+        pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank="first_sight",
+                    first_attempt="C", retry_on_fold_lost="0.02" if on else "0")
+        monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
+        ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
+        pol._episodes = [ep]
+        ep.act(flat)
+        return ep
+
+    def before_straddle(ep, obs, limit=60):  # C's left hand has just moved out; act until a new attempt starts
+        ep.actions, ep.index = None, C_STRADDLE - 1
+        n, before = 0, len(ep.attempts)
+        while len(ep.attempts) == before and n < limit:
+            ep.act(obs)
+            n += 1
+        return n - 1 if len(ep.attempts) > before else None
+
+    ep = episode()  # the fold lay back down: nothing above where the object lay
+    steps = before_straddle(ep, flat)
+    reading = [d for d in ep.log if "fold_kept" in d]
+    assert len(reading) == 1 and reading[0]["fold_kept"] < 0.02 and reading[0]["response_failed"] is on
+    if on:
+        assert steps == HOME_STEPS and ep.attempts == ["C", "B"] and ep.tried == ["C", "C", "B"]
+    else:
+        assert steps is None and ep.attempts == ["C"]
+    ep = episode()  # the fold stands: the pinch goes on
+    assert before_straddle(ep, fold) is None and ep.attempts == ["C"]
+    assert [d["fold_kept"] > 0.02 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True]
+    ep = episode()  # a later C attempt on the object: goes on
+    ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
+    assert before_straddle(ep, flat) is None and [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False]
+    with pytest.raises(ValueError, match="retry_on_fold_lost needs --policy.retry_failed=true or"):
+        FlatLabUnifiedConfig(retry_on_fold_lost=0.02)
+    with pytest.raises(ValueError, match="retry_on_fold_lost: a height in"):
+        FlatLabUnifiedConfig(retry_on_fold_lost=0.5, retry_failed=True)
+
+
 @pytest.mark.parametrize("retry", [False, True])
 def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_place(tiny, monkeypatch, retry):
     """retry_next_strategy (with clear_all): an attempt on the object seen where the last one started takes the

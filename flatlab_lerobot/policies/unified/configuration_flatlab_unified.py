@@ -174,6 +174,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # table top (a sheet drooping over the edge) -> A and B ruled out.  Spares the episode a whole wrong attempt.
     # Not in the paper
     retry_on_response: str = ""
+    # with retry_failed (or, on the desk, retry_next_strategy): the first C attempt on the object ends, and C counts
+    # as tried retry_switch_after times, when the fold it raised has sunk below this height (m; the seen top's rise
+    # since the attempt started) as the pinching hand is about to straddle it: a stiff pad that folded under the
+    # squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Not in the paper
+    retry_on_fold_lost: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
     # first_sight, the retries keep that ranking.  Column S then reports this strategy.  Empty: off
@@ -383,6 +388,11 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.retry_on_response: letters of A, C (or empty), got {self.retry_on_response!r}")
         if self.retry_on_response and not (self.retry_failed or self.retry_next_strategy):
             raise ValueError("--policy.retry_on_response needs --policy.retry_failed=true or, with clear_all, "
+                             "--policy.retry_next_strategy=true (the retry it ends in)")
+        if not 0.0 <= self.retry_on_fold_lost <= 0.2:
+            raise ValueError(f"--policy.retry_on_fold_lost: a height in [0, 0.2] m (0: off), got {self.retry_on_fold_lost!r}")
+        if self.retry_on_fold_lost and not (self.retry_failed or self.retry_next_strategy):
+            raise ValueError("--policy.retry_on_fold_lost needs --policy.retry_failed=true or, with clear_all, "
                              "--policy.retry_next_strategy=true (the retry it ends in)")
         if self.first_attempt not in ("", "A", "B", "C"):
             raise ValueError(f"--policy.first_attempt: one of A, B, C or empty, got {self.first_attempt!r}")

@@ -102,6 +102,7 @@ STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen
 RESPONSE_FOLD_RISE = 0.02  # m: retry_on_response: C's squeeze raised the seen top less than this = no fold (rigid)
 RESPONSE_DROOP = 0.03  # m: retry_on_response: the object cloud this far below the table top after a push = a sheet
 C_SQUEEZED = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "squeeze") + 1  # C's stage after its squeeze
+C_STRADDLE = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "press")  # C's pinching hand straddles the fold
 
 
 @dataclass
@@ -343,7 +344,11 @@ class _Episode:
         another kind of object (no fold at the first attempt, on the object as it was placed; a droop) ends the
         attempt: the arms go home at once and the strategies it rules out count as tried ``retry_switch_after``
         times, so the next attempt takes the generator's most probable other one.  A sheet that a failed A left
-        hanging over the edge folds less (Train's ``shorts_denim``: 0.8 and 1.4 cm), hence C's first attempt only."""
+        hanging over the edge folds less (Train's ``shorts_denim``: 0.8 and 1.4 cm), hence C's first attempt only.
+        A third reading, C's fold as the pinching hand is about to straddle it (the seen top's rise since the attempt
+        started, the left hand gone): a stiff pad folds under the squeeze and lies back down flat once let go
+        (Train's ``mousepad_large``, stop 71), a cloth's fold stands; with ``retry_on_fold_lost`` a fold lower than
+        that at C's first attempt rules C out the same way."""
         pts, i = obs.object_points, self.index
         if not len(pts) or self.start_top is None:
             return False
@@ -351,6 +356,15 @@ class _Episode:
             rise = float(pts[:, 2].max()) - self.start_top
             other = rise < RESPONSE_FOLD_RISE and self.tried == ["C"]  # the first attempt on this object
             entry, ruled_out = {"index": i, "fold_rise": round(rise, 4)}, ("C",)
+        elif self.strategy == "C" and i == C_STRADDLE:
+            kept = float(pts[:, 2].max()) - self.start_top
+            entry, ruled_out = {"index": i, "fold_kept": round(kept, 4)}, ("C",)
+            limit = self.policy.config.retry_on_fold_lost
+            entry["response_failed"] = fire = bool(limit and kept < limit and self.tried == ["C"])
+            self.log.append(entry)
+            if fire:
+                self._end_attempt(obs, n_stages, ruled_out)
+            return fire
         elif self.strategy == "A" and 0 < i <= A_PREAPPROACH and i % PASS_STAGES == 0:
             droop = obs.table_top - float(pts[:, 2].min())
             other, entry, ruled_out = droop > RESPONSE_DROOP, {"index": i, "droop": round(droop, 4)}, ("A", "B")
