@@ -1222,15 +1222,16 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
 
 @pytest.mark.parametrize("on", [False, True])
 def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch, on):
-    """retry_on_fold_lost (with retry_failed): as C's pinching hand is about to straddle the fold, the seen top's rise
-    since the attempt started is logged (fold_kept); below the switch's height at the first C attempt on the object
-    (a stiff pad whose fold lay back down flat) the attempt ends at once and C is ruled out; a standing fold goes on,
-    and so does a later C attempt.  Without the switch nothing ends early."""
+    """retry_on_fold_lost (with retry_failed): as C's pinching hand is about to straddle the fold and again as it is
+    about to pinch, the seen top's rise since the attempt started is logged (fold_kept); below the switch's height as
+    the pinch begins, at the first C attempt on the object (a stiff pad whose fold lay back down flat), the attempt
+    ends at once and C is ruled out; a standing fold goes on, and so does a later C attempt.  Without the switch
+    nothing ends early."""
     from flatlab_lerobot.catalog import get_object
-    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import C_STRADDLE
+    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import C_PINCH, C_STRADDLE
     from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
 
-    assert STAGE_SPECS["C"][C_STRADDLE - 1].primitive == "move" and STAGE_SPECS["C"][C_STRADDLE + 1].primitive == "grasp"
+    assert STAGE_SPECS["C"][C_STRADDLE - 1].primitive == "move" and C_PINCH == C_STRADDLE + 1
     sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
     flat = _desk_observed(sim)
     top = float(flat.object_points[:, 2].max())
@@ -1246,7 +1247,7 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
         return ep
 
     def before_straddle(ep, obs, limit=60):  # C's left hand has just moved out; act until a new attempt starts
-        ep.actions, ep.index = None, C_STRADDLE - 1
+        ep.actions, ep.index = None, C_STRADDLE - 1  # (straddling, then pinching, on the cloud ``obs``)
         n, before = 0, len(ep.attempts)
         while len(ep.attempts) == before and n < limit:
             ep.act(obs)
@@ -1256,17 +1257,20 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
     ep = episode()  # the fold lay back down: nothing above where the object lay
     steps = before_straddle(ep, flat)
     reading = [d for d in ep.log if "fold_kept" in d]
-    assert len(reading) == 1 and reading[0]["fold_kept"] < 0.02 and reading[0]["response_failed"] is on
+    assert [d["index"] for d in reading] == [C_STRADDLE, C_PINCH] and all(d["fold_kept"] < 0.02 for d in reading)
+    assert [d["response_failed"] for d in reading] == [False, on]  # the straddle's reading is only logged
     if on:
-        assert steps == HOME_STEPS and ep.attempts == ["C", "B"] and ep.tried == ["C", "C", "B"]
+        straddle = STAGE_SPECS["C"][C_STRADDLE]
+        assert steps == round((straddle.transit + straddle.seconds()) / 0.1) + HOME_STEPS  # straddled, then home
+        assert ep.attempts == ["C", "B"] and ep.tried == ["C", "C", "B"]
     else:
         assert steps is None and ep.attempts == ["C"]
     ep = episode()  # the fold stands: the pinch goes on
     assert before_straddle(ep, fold) is None and ep.attempts == ["C"]
-    assert [d["fold_kept"] > 0.02 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True]
+    assert [d["fold_kept"] > 0.02 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True, True]
     ep = episode()  # a later C attempt on the object: goes on
     ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
-    assert before_straddle(ep, flat) is None and [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False]
+    assert before_straddle(ep, flat) is None and [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False] * 2
     with pytest.raises(ValueError, match="retry_on_fold_lost needs --policy.retry_failed=true or"):
         FlatLabUnifiedConfig(retry_on_fold_lost=0.02)
     with pytest.raises(ValueError, match="retry_on_fold_lost: a height in"):

@@ -103,6 +103,7 @@ RESPONSE_FOLD_RISE = 0.02  # m: retry_on_response: C's squeeze raised the seen t
 RESPONSE_DROOP = 0.03  # m: retry_on_response: the object cloud this far below the table top after a push = a sheet
 C_SQUEEZED = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "squeeze") + 1  # C's stage after its squeeze
 C_STRADDLE = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "press")  # C's pinching hand straddles the fold
+C_PINCH = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "grasp")  # ... then pinches it
 
 
 @dataclass
@@ -345,10 +346,11 @@ class _Episode:
         attempt: the arms go home at once and the strategies it rules out count as tried ``retry_switch_after``
         times, so the next attempt takes the generator's most probable other one.  A sheet that a failed A left
         hanging over the edge folds less (Train's ``shorts_denim``: 0.8 and 1.4 cm), hence C's first attempt only.
-        A third reading, C's fold as the pinching hand is about to straddle it (the seen top's rise since the attempt
-        started, the left hand gone): a stiff pad folds under the squeeze and lies back down flat once let go
-        (Train's ``mousepad_large``, stop 71), a cloth's fold stands; with ``retry_on_fold_lost`` a fold lower than
-        that at C's first attempt rules C out the same way."""
+        A third reading, C's fold (the seen top's rise since the attempt started) as the pinching hand is about to
+        straddle it and again as it is about to pinch: a stiff pad folds under the squeeze and lies back down flat
+        once let go, often only while the hand comes down (Train's ``mousepad_large``, stops 71-72), a cloth's fold
+        stands; with ``retry_on_fold_lost`` a fold lower than that as the pinch begins, at C's first attempt, rules C
+        out the same way."""
         pts, i = obs.object_points, self.index
         if not len(pts) or self.start_top is None:
             return False
@@ -356,11 +358,11 @@ class _Episode:
             rise = float(pts[:, 2].max()) - self.start_top
             other = rise < RESPONSE_FOLD_RISE and self.tried == ["C"]  # the first attempt on this object
             entry, ruled_out = {"index": i, "fold_rise": round(rise, 4)}, ("C",)
-        elif self.strategy == "C" and i == C_STRADDLE:
+        elif self.strategy == "C" and i in (C_STRADDLE, C_PINCH):
             kept = float(pts[:, 2].max()) - self.start_top
             entry, ruled_out = {"index": i, "fold_kept": round(kept, 4)}, ("C",)
             limit = self.policy.config.retry_on_fold_lost
-            entry["response_failed"] = fire = bool(limit and kept < limit and self.tried == ["C"])
+            entry["response_failed"] = fire = bool(limit and i == C_PINCH and kept < limit and self.tried == ["C"])
             self.log.append(entry)
             if fire:
                 self._end_attempt(obs, n_stages, ruled_out)
