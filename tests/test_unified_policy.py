@@ -1239,7 +1239,7 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
 
     def episode():
         pol = _load(tiny["artifact"], retry_failed="true", retry_switch_after="2", retry_rank="first_sight",
-                    first_attempt="C", retry_on_fold_lost="0.02" if on else "0")
+                    first_attempt="C", retry_on_fold_lost="0.01" if on else "0")
         monkeypatch.setattr(pol, "rank_strategies", lambda cloud: ["B", "A", "C"])
         ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), None)
         pol._episodes = [ep]
@@ -1257,7 +1257,7 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
     ep = episode()  # the fold lay back down: nothing above where the object lay
     steps = before_straddle(ep, flat)
     reading = [d for d in ep.log if "fold_kept" in d]
-    assert [d["index"] for d in reading] == [C_STRADDLE, C_PINCH] and all(d["fold_kept"] < 0.02 for d in reading)
+    assert [d["index"] for d in reading] == [C_STRADDLE, C_PINCH] and all(d["fold_kept"] < 0.01 for d in reading)
     assert [d["response_failed"] for d in reading] == [False, on]  # the straddle's reading is only logged
     if on:
         straddle = STAGE_SPECS["C"][C_STRADDLE]
@@ -1267,7 +1267,7 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
         assert steps is None and ep.attempts == ["C"]
     ep = episode()  # the fold stands: the pinch goes on
     assert before_straddle(ep, fold) is None and ep.attempts == ["C"]
-    assert [d["fold_kept"] > 0.02 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True, True]
+    assert [d["fold_kept"] > 0.01 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True, True]
     ep = episode()  # a later C attempt on the object: goes on
     ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
     assert before_straddle(ep, flat) is None and [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False] * 2

@@ -177,7 +177,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with retry_failed (or, on the desk, retry_next_strategy): the first C attempt on the object ends, and C counts
     # as tried retry_switch_after times, when the fold it raised has sunk below this height (m; the seen top's rise
     # since the attempt started) as the pinching hand, straddling it, is about to pinch: a stiff pad that folded under
-    # the squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Not in the paper
+    # the squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Chosen on Train (stop 72):
+    # 0.01 (the mouse pads' first-C readings were 0.0 in 10 of 10 trials, the cloths' 0.0 in 1 of 40 and 1.6-2.0 cm
+    # in 2; docs/unified.md).  Not in the paper
     retry_on_fold_lost: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
