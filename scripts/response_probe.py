@@ -1,5 +1,6 @@
 """How objects answer the unified policy's stages: per trial, the attempts, G and the ``retry_on_response``
-readings (C's fold rise after the squeeze and the fold still standing as the pinch begins, the droop below the table top after each of A's push passes).
+readings (C's fold rise after the squeeze, its fold as the straddle and as the pinch begin, the droop below the table
+top after each of A's push passes).
 
     python scripts/response_probe.py --policy outputs/paper/cpu/unified_cpu_top_a --objects board_plywood,fabric_cotton \
         --trials 3 --out outputs/probe/c_first.jsonl -- --policy.first_attempt=C --policy.retry_failed=true ...

@@ -348,9 +348,10 @@ class _Episode:
         hanging over the edge folds less (Train's ``shorts_denim``: 0.8 and 1.4 cm), hence C's first attempt only.
         A third reading, C's fold (the seen top's rise since the attempt started) as the pinching hand is about to
         straddle it and again as it is about to pinch: a stiff pad folds under the squeeze and lies back down flat
-        once let go, often only while the hand comes down (Train's ``mousepad_large``, stops 71-72), a cloth's fold
-        stands; with ``retry_on_fold_lost`` a fold lower than that as the pinch begins, at C's first attempt, rules C
-        out the same way."""
+        once let go, often only while the hand comes down (Train's ``mousepad_large``, stops 71-72); with
+        ``retry_on_fold_lost`` a fold lower than that as the pinch begins, at C's first attempt, rules C out the same
+        way.  A cloth's fold mostly stands, but the pinch also gathers and lifts a cloth whose fold has lain flat (the
+        unseen scarves, stop 72), so no row uses that switch."""
         pts, i = obs.object_points, self.index
         if not len(pts) or self.start_top is None:
             return False
