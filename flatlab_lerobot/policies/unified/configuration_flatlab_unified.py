@@ -177,9 +177,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # with retry_failed (or, on the desk, retry_next_strategy): the first C attempt on the object ends, and C counts
     # as tried retry_switch_after times, when the fold it raised has sunk below this height (m; the seen top's rise
     # since the attempt started) as the pinching hand, straddling it, is about to pinch: a stiff pad that folded under
-    # the squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Chosen on Train (stop 72):
-    # 0.01 (the mouse pads' first-C readings were 0.0 in 10 of 10 trials, the cloths' 0.0 in 1 of 40 and 1.6-2.0 cm
-    # in 2).  Measured on all splits (one build): Train +2 trials, Test-alpha -1, Test-beta -13 (the unseen scarves
+    # the squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Chosen on Train
+    # (stop 72): 0.01 (the mouse pads' first-C readings were 0.0 in 10 of 10 trials, the cloths' 0.0 in 1 of 40 and
+    # 1.6-2.0 cm in 2).  Measured on all splits (one build): Train +2 trials, Test-alpha -1, Test-beta -13 (the unseen scarves
     # are lifted from a fold that has lain flat), so no row uses it (docs/unified.md).  Not in the paper
     retry_on_fold_lost: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
@@ -393,7 +393,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.retry_on_response needs --policy.retry_failed=true or, with clear_all, "
                              "--policy.retry_next_strategy=true (the retry it ends in)")
         if not 0.0 <= self.retry_on_fold_lost <= 0.2:
-            raise ValueError(f"--policy.retry_on_fold_lost: a height in [0, 0.2] m (0: off), got {self.retry_on_fold_lost!r}")
+            raise ValueError(
+                f"--policy.retry_on_fold_lost: a height in [0, 0.2] m (0: off), got {self.retry_on_fold_lost!r}")
         if self.retry_on_fold_lost and not (self.retry_failed or self.retry_next_strategy):
             raise ValueError("--policy.retry_on_fold_lost needs --policy.retry_failed=true or, with clear_all, "
                              "--policy.retry_next_strategy=true (the retry it ends in)")
