@@ -1270,7 +1270,8 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
     assert [d["fold_kept"] > 0.01 and not d["response_failed"] for d in ep.log if "fold_kept" in d] == [True, True]
     ep = episode()  # a later C attempt on the object: goes on
     ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
-    assert before_straddle(ep, flat) is None and [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False] * 2
+    assert before_straddle(ep, flat) is None
+    assert [d["response_failed"] for d in ep.log if "fold_kept" in d] == [False] * 2
     with pytest.raises(ValueError, match="retry_on_fold_lost needs --policy.retry_failed=true or"):
         FlatLabUnifiedConfig(retry_on_fold_lost=0.02)
     with pytest.raises(ValueError, match="retry_on_fold_lost: a height in"):

@@ -179,8 +179,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # since the attempt started) as the pinching hand, straddling it, is about to pinch: a stiff pad that folded under
     # the squeeze and lay back down flat once let go (Train's mousepad_large, stop 71).  0: off.  Chosen on Train
     # (stop 72): 0.01 (the mouse pads' first-C readings were 0.0 in 10 of 10 trials, the cloths' 0.0 in 1 of 40 and
-    # 1.6-2.0 cm in 2).  Measured on all splits (one build): Train +2 trials, Test-alpha -1, Test-beta -13 (the unseen scarves
-    # are lifted from a fold that has lain flat), so no row uses it (docs/unified.md).  Not in the paper
+    # 1.6-2.0 cm in 2).  Measured on all splits (one build): Train +2 trials, Test-alpha -1, Test-beta -13 (the
+    # unseen scarves are lifted from a fold that has lain flat), so no row uses it (docs/unified.md).  Not in the paper
     retry_on_fold_lost: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=

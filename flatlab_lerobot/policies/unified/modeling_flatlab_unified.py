@@ -102,7 +102,7 @@ STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen
 RESPONSE_FOLD_RISE = 0.02  # m: retry_on_response: C's squeeze raised the seen top less than this = no fold (rigid)
 RESPONSE_DROOP = 0.03  # m: retry_on_response: the object cloud this far below the table top after a push = a sheet
 C_SQUEEZED = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "squeeze") + 1  # C's stage after its squeeze
-C_STRADDLE = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "press")  # C's pinching hand straddles the fold
+C_STRADDLE = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "press")  # C's hand straddles the fold
 C_PINCH = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "grasp")  # ... then pinches it
 
 
