@@ -389,15 +389,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.quick_retry=true needs --policy.clear_all=true (desk retries)")
         if set(self.retry_on_response) - set("AC"):
             raise ValueError(f"--policy.retry_on_response: letters of A, C (or empty), got {self.retry_on_response!r}")
-        if self.retry_on_response and not (self.retry_failed or self.retry_next_strategy):
-            raise ValueError("--policy.retry_on_response needs --policy.retry_failed=true or, with clear_all, "
-                             "--policy.retry_next_strategy=true (the retry it ends in)")
         if not 0.0 <= self.retry_on_fold_lost <= 0.2:
             raise ValueError(
                 f"--policy.retry_on_fold_lost: a height in [0, 0.2] m (0: off), got {self.retry_on_fold_lost!r}")
-        if self.retry_on_fold_lost and not (self.retry_failed or self.retry_next_strategy):
-            raise ValueError("--policy.retry_on_fold_lost needs --policy.retry_failed=true or, with clear_all, "
-                             "--policy.retry_next_strategy=true (the retry it ends in)")
+        for name in ("retry_on_response", "retry_on_fold_lost"):  # both end an attempt in a retry
+            if getattr(self, name) and not (self.retry_failed or self.retry_next_strategy):
+                raise ValueError(f"--policy.{name} needs --policy.retry_failed=true or, with clear_all, "
+                                 "--policy.retry_next_strategy=true (the retry it ends in)")
         if self.first_attempt not in ("", "A", "B", "C"):
             raise ValueError(f"--policy.first_attempt: one of A, B, C or empty, got {self.first_attempt!r}")
         if self.retry_failed and self.clear_all:

@@ -352,28 +352,25 @@ class _Episode:
         ``retry_on_fold_lost`` a fold lower than that as the pinch begins, at C's first attempt, rules C out the same
         way.  A cloth's fold mostly stands, but the pinch also gathers and lifts a cloth whose fold has lain flat (the
         unseen scarves, stop 72), so no row uses that switch."""
-        pts, i = obs.object_points, self.index
+        pts, i, cfg = obs.object_points, self.index, self.policy.config
         if not len(pts) or self.start_top is None:
             return False
-        if self.strategy == "C" and i == C_SQUEEZED:
+        if self.strategy == "C" and i in (C_SQUEEZED, C_STRADDLE, C_PINCH):
             rise = float(pts[:, 2].max()) - self.start_top
-            other = rise < RESPONSE_FOLD_RISE and self.tried == ["C"]  # the first attempt on this object
-            entry, ruled_out = {"index": i, "fold_rise": round(rise, 4)}, ("C",)
-        elif self.strategy == "C" and i in (C_STRADDLE, C_PINCH):
-            kept = float(pts[:, 2].max()) - self.start_top
-            entry, ruled_out = {"index": i, "fold_kept": round(kept, 4)}, ("C",)
-            limit = self.policy.config.retry_on_fold_lost
-            entry["response_failed"] = fire = bool(limit and i == C_PINCH and kept < limit and self.tried == ["C"])
-            self.log.append(entry)
-            if fire:
-                self._end_attempt(obs, n_stages, ruled_out)
-            return fire
+            ruled_out = ("C",)
+            if i == C_SQUEEZED:
+                on, limit, key = "C" in cfg.retry_on_response, RESPONSE_FOLD_RISE, "fold_rise"
+            else:  # the straddle's reading is only logged
+                on, limit, key = bool(cfg.retry_on_fold_lost) and i == C_PINCH, cfg.retry_on_fold_lost, "fold_kept"
+            other = rise < limit and self.tried == ["C"]  # the first attempt on this object
+            entry = {"index": i, key: round(rise, 4)}
         elif self.strategy == "A" and 0 < i <= A_PREAPPROACH and i % PASS_STAGES == 0:
             droop = obs.table_top - float(pts[:, 2].min())
-            other, entry, ruled_out = droop > RESPONSE_DROOP, {"index": i, "droop": round(droop, 4)}, ("A", "B")
+            on, other, ruled_out = "A" in cfg.retry_on_response, droop > RESPONSE_DROOP, ("A", "B")
+            entry = {"index": i, "droop": round(droop, 4)}
         else:
             return False
-        entry["response_failed"] = fire = bool(self.strategy in self.policy.config.retry_on_response and other)
+        entry["response_failed"] = fire = bool(on and other)
         self.log.append(entry)
         if fire:
             self._end_attempt(obs, n_stages, ruled_out)
