@@ -1148,6 +1148,17 @@ def test_retry_failed_tries_the_next_strategy_after_a_visibly_failed_lift(tiny, 
     assert ep.stage == "hold" and len(ep.attempts) == 3
 
 
+def _steps_to_next_attempt(ep, index, obs, limit=60):
+    """The stage before ``index`` has just ended; act on ``obs`` until a new attempt starts: the steps before it (None:
+    none started in ``limit``)."""
+    ep.actions, ep.index = None, index - 1
+    n, before = 0, len(ep.attempts)
+    while len(ep.attempts) == before and n < limit:
+        ep.act(obs)
+        n += 1
+    return n - 1 if len(ep.attempts) > before else None
+
+
 @pytest.mark.parametrize("on", [False, True])
 def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(tiny, monkeypatch, on):
     """retry_on_response (with retry_failed): C's squeeze that raised no fold (a rigid object) ends the attempt at
@@ -1176,16 +1187,8 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
         assert ep.attempts == [first]  # ranked first by first_attempt, though the generator ranks it last
         return ep
 
-    def after_stage(ep, index, obs, limit=60):  # the stage before ``index`` has just ended; act until a new attempt
-        ep.actions, ep.index = None, index - 1  # starts: the steps before it (None: none started in ``limit``)
-        n, before = 0, len(ep.attempts)
-        while len(ep.attempts) == before and n < limit:
-            ep.act(obs)
-            n += 1
-        return n - 1 if len(ep.attempts) > before else None
-
     ep = episode("C")  # a rigid object: the squeeze raised nothing
-    steps = after_stage(ep, C_SQUEEZED, flat)
+    steps = _steps_to_next_attempt(ep, C_SQUEEZED, flat)
     reading = [d for d in ep.log if "fold_rise" in d][0]
     assert reading["fold_rise"] < 0.02 and reading["response_failed"] is on
     if on:
@@ -1193,14 +1196,15 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
     else:
         assert steps is None and ep.attempts == ["C"]  # the attempt goes on
     ep = episode("C")  # a sheet: the squeeze raised a fold, the attempt goes on
-    assert after_stage(ep, C_SQUEEZED, fold) is None and ep.attempts == ["C"]
+    assert _steps_to_next_attempt(ep, C_SQUEEZED, fold) is None and ep.attempts == ["C"]
     assert [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
     ep = episode("C")  # no fold, but at a later attempt (a sheet a failed A left over the edge folds less): goes on
     ep.attempts, ep.tried = ["A", "C"], ["A", "C"]
-    assert after_stage(ep, C_SQUEEZED, flat) is None and [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
+    assert _steps_to_next_attempt(ep, C_SQUEEZED, flat) is None
+    assert [d["response_failed"] for d in ep.log if "fold_rise" in d] == [False]
 
     ep = episode("A")  # a sheet drooping over the edge after the first push pass
-    steps = after_stage(ep, PASS_STAGES, droop)
+    steps = _steps_to_next_attempt(ep, PASS_STAGES, droop)
     reading = [d for d in ep.log if "droop" in d][0]
     assert reading["droop"] > 0.03 and reading["response_failed"] is on
     if on:
@@ -1208,9 +1212,10 @@ def test_retry_on_response_ends_an_attempt_whose_object_answers_as_another_kind(
     else:
         assert steps is None and ep.attempts == ["A"]
     ep = episode("A")  # a level object after the push pass: A goes on
-    assert after_stage(ep, PASS_STAGES, flat, limit=5) is None and [d["response_failed"] for d in ep.log if "droop" in d] == [False]
+    assert _steps_to_next_attempt(ep, PASS_STAGES, flat, limit=5) is None
+    assert [d["response_failed"] for d in ep.log if "droop" in d] == [False]
     ep = episode("C", clear_all="true", retry_next_strategy="true")  # the desk's retries, on the object left in place
-    steps = after_stage(ep, C_SQUEEZED, flat)
+    steps = _steps_to_next_attempt(ep, C_SQUEEZED, flat)
     assert (steps, ep.attempts) == ((HOME_STEPS, ["C", "B"]) if on else (None, ["C"]))
     with pytest.raises(ValueError, match="retry_on_response needs --policy.retry_failed=true or"):
         FlatLabUnifiedConfig(retry_on_response="C")
@@ -1246,13 +1251,8 @@ def test_retry_on_fold_lost_ends_a_c_whose_fold_lay_back_down(tiny, monkeypatch,
         ep.act(flat)
         return ep
 
-    def before_straddle(ep, obs, limit=60):  # C's left hand has just moved out; act until a new attempt starts
-        ep.actions, ep.index = None, C_STRADDLE - 1  # (straddling, then pinching, on the cloud ``obs``)
-        n, before = 0, len(ep.attempts)
-        while len(ep.attempts) == before and n < limit:
-            ep.act(obs)
-            n += 1
-        return n - 1 if len(ep.attempts) > before else None
+    def before_straddle(ep, obs):  # C's left hand has just moved out: straddling, then pinching, on the cloud ``obs``
+        return _steps_to_next_attempt(ep, C_STRADDLE, obs)
 
     ep = episode()  # the fold lay back down: nothing above where the object lay
     steps = before_straddle(ep, flat)
