@@ -159,6 +159,37 @@ def test_two_b_objects_are_cleared_in_one_cell():
     assert ep.target[0] == 0 and ep.target[-1] == 1  # the same physics episode, target switched
 
 
+def test_rebased_squeeze_carries_a_thin_heavy_board_off(capsys):
+    """B commands each hand 2.5 cm past the face it touched.  The board stops the hands and the error lands on
+    the weakest joint: the wrists (joint 6, 12 Nm) saturate and one hand holds the board bent 0.2 rad off its
+    commanded angle.  On Test-beta desk 7's pose the thin 2.2-kg marble board then pitches out of the hands
+    mid-carry and falls back on the table.  With the squeeze re-based CARRY_SQUEEZE past where the hands are,
+    the wrists keep their angles and the board is carried off."""
+    from flatlab_lerobot.tasks.clear_desk import CARRY_SQUEEZE
+
+    lay = DeskLayout(0, (DeskItem(get_object("cutboard_marble"), -0.013, 0.194, 0.243),))
+    bent: list[float] = []
+
+    def joint6(sim, stage, target):  # the wrists' angle error (rad), worst of the two, while the board is carried
+        if stage == "move" and sim.holding_arms() == ("left", "right"):
+            i = [sim.model.actuator(f"{a}/actuator6").id for a in ("left", "right")]
+            bent.append(float(np.max(np.abs(sim.data.ctrl[i] - sim.data.actuator_length[i]))))
+
+    old = run_desk_episode(layout=lay, carry_squeeze=None, on_step=joint6)
+    assert [(o["lifted"], o["cleared"]) for o in old.per_object] == [(True, False)]  # lifted, dropped back
+    assert np.median(bent) > 0.15
+    bent.clear()
+    assert CARRY_SQUEEZE == 0.01
+    new = run_desk_episode(layout=lay, on_step=joint6)
+    assert [(o["lifted"], o["cleared"]) for o in new.per_object] == [(True, True)] and any(new.success)
+    assert np.median(bent) < 0.05
+    with pytest.raises(SystemExit):  # the CLI refuses a squeeze wider than B's own
+        from flatlab_lerobot.paper import desk
+
+        desk.main(["--carry-squeeze", "0.05", "--out", "unused.json"])
+    assert "--carry-squeeze: 0.05: want 0 to 0.025 m" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_expert_clears_the_desk():
     m = run_scenario("clear_desk", seed=EXPERT_SEED)

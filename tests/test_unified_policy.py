@@ -1070,6 +1070,51 @@ def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
     assert ep.stage == "hold" and len(ep.attempts) == 3 and ep.strategy is None
 
 
+@pytest.mark.parametrize("squeeze", [None, 0.01])
+def test_carry_squeeze_lets_the_wrists_keep_a_thin_heavy_board_on_the_carry(tiny, squeeze):
+    """carry_squeeze (with clear_all): before a two-hand carry-off each commanded hand moves back to where the
+    observed joints put it, plus carry_squeeze inward.  The expert's B lifts the thin 2.2-kg marble board
+    (Test-beta desk 7's pose) and the policy carries it: with the commanded squeeze (None) the saturated wrists
+    let it pitch out of the hands onto the table, re-based it leaves the table (tests/test_clear_desk.py's case
+    for the expert).  The commanded hands open by about the wrists' bend; none moves inward."""
+    from flatlab_lerobot.catalog import get_object
+    from flatlab_lerobot.strategies import Expert
+    from flatlab_lerobot.tasks.clear_desk import REBASE_STEPS, DeskItem, DeskLayout, make_desk_sim
+
+    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("cutboard_marble"), -0.013, 0.194, 0.243),)))
+    expert = Expert(sim.cell, sim.control_dt)
+    gen = expert.episode("B", lambda: (sim.joint_positions(), sim.environment_state()))
+    for _ in range(200):
+        stage, _, action = next(gen)
+        sim.step(action)
+        if sim.is_success():
+            break
+    assert sim.is_success() and sim.holding_arms() == ("left", "right")
+    pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5, carry_squeeze="null" if squeeze is None else squeeze)
+    assert pol.config.carry_squeeze == squeeze
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
+    ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
+    ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
+    gap = lambda a: np.linalg.norm(np.subtract(*(p for p, _ in expert.fk(np.r_[a[0:7], a[8:15]]).values())))  # noqa: E731
+    gaps = [gap(action)]
+    for _ in range(200):
+        a = ep.act(_desk_observed(sim))
+        sim.step(a)
+        if [d["after"] for d in ep.log if "after" in d] == ["carry"] and len(gaps) <= REBASE_STEPS:
+            gaps.append(gap(a))
+        if sim.off_table(0) or not sim.holding_arms():
+            break
+    assert len(gaps) == REBASE_STEPS + 1 and np.all(np.diff(gaps) > -1e-4)
+    assert gaps[-1] - gaps[0] == (pytest.approx(0.0, abs=1e-3) if squeeze is None else pytest.approx(0.035, abs=0.01))
+    for _ in range(30):
+        sim.step(ep.act(_desk_observed(sim)))
+    assert sim.off_table(0) == (squeeze is not None)
+    with pytest.raises(ValueError, match="carry_squeeze acts on the carry-off"):
+        FlatLabUnifiedConfig(carry_squeeze=0.01)
+    with pytest.raises(ValueError, match="carry_squeeze: 0 to 0.025 m"):
+        FlatLabUnifiedConfig(carry_squeeze=0.05, clear_all=True)
+
+
 @pytest.mark.parametrize("quick", [False, True])
 def test_quick_retry_goes_home_at_once_when_the_lift_visibly_failed(tiny, quick):
     """quick_retry (with clear_all): when the final hold is about to begin and the object cloud still lies on the

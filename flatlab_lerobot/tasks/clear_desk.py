@@ -37,6 +37,15 @@ from flatlab_lerobot.sim.scene import CellConfig
 
 CARRY_MARGIN = 0.04  # m: how far past the usable edge the held object is carried (see carry_candidates)
 CARRY_SPEED = 0.10  # m/s, mean
+# m: before a two-hand carry each hand's commanded position is moved back, along the line between
+# the hands, to where the hand is measured plus this much inward (see rebase_squeeze).  B commands
+# each hand B_SQUEEZE (2.5 cm) past the face it touched; the object stops the hands and the error
+# lands on the weakest joint: the wrists (joint 6, 12 Nm) saturate and a hand holds the object bent
+# up to 0.2 rad off its commanded angle.  A thin 2.2-kg board (cutboard_marble) pitched out of such
+# hands mid-carry on 5 of the oracle's 8 failed Test-beta desks (stop 73).  Re-based, the command is
+# 1 cm past where the hands are: the object stays clamped and the wrists keep their angles.
+CARRY_SQUEEZE = 0.01
+REBASE_STEPS = 5  # control steps of that move
 HOME_STEPS = 20  # control steps of the joint-space move home after each object
 
 
@@ -345,23 +354,46 @@ def _horizontal_unit(v: np.ndarray) -> np.ndarray:
     return v / (np.linalg.norm(v) + 1e-9)
 
 
-def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float]):
+def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float], squeeze: float | None = CARRY_SQUEEZE):
     """After a successful lift: carry the target past the usable edge, let go, go home (the
-    expert's call: holding arms, object and its centre from the simulation; :func:`carry_and_release`).
-    Yields (stage, action (16,))."""
+    expert's call: holding arms, object and its centre from the simulation; :func:`carry_and_release`,
+    ``squeeze``: its re-based squeeze).  Yields (stage, action (16,))."""
     arms = sim.holding_arms() or ARMS
-    yield from carry_and_release(expert, arms, carry_candidates(sim, arms), lambda: sim.object_pose()[0], q, grip)
+    measured = sim.joint_positions()
+    yield from carry_and_release(expert, arms, carry_candidates(sim, arms), lambda: sim.object_pose()[0], q, grip,
+                                 squeeze, np.r_[measured[0:7], measured[8:15]])  # fmt: skip
+
+
+def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, float], squeeze: float):
+    """Two hands holding an object between them: move each hand's commanded position, along the
+    horizontal line between the hands, to where the hand is (``measured`` joints (14,)) plus
+    ``squeeze`` (m) inward -- never further out than that, never inward (orientations as commanded),
+    in REBASE_STEPS smooth steps on the expert's kinematic model.  Yields ("move", action (16,));
+    returns the last commanded joints (14,)."""
+    cmd, now = expert.fk(q), expert.fk(measured)
+    u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])  # right hand -> left hand
+    inward = {"left": -u, "right": u}
+    back = {a: max(0.0, float(np.dot(cmd[a][0] - now[a][0], inward[a])) - squeeze) for a in ARMS}
+    qk = q
+    for s in _smooth(REBASE_STEPS):
+        qk = expert.ik({a: (cmd[a][0] - inward[a] * back[a] * s, cmd[a][1]) for a in ARMS}, qk)
+        yield "move", np.r_[qk[:7], grip["left"], qk[7:], grip["right"]]
+    return qk
 
 
 def carry_and_release(expert, arms: tuple[str, ...], candidates: list[np.ndarray], centre, q: np.ndarray,
-                      grip: dict[str, float]):
+                      grip: dict[str, float], squeeze: float | None = None, measured: np.ndarray | None = None):
     """Carry the hands of ``arms`` by the first of ``candidates`` (:func:`carry_displacements`) whose
     plan the arms can follow within 5 mm (else the best one), let go, go home.  Yields (stage,
     action (16,)).  ``q`` (14,) / ``grip`` are the last commanded joints / gripper widths;
     ``centre()`` is the object's centre once carried (the hands back away from it), asked when
-    the release is planned.  Plans on ``expert``'s kinematic model only."""
+    the release is planned.  ``squeeze`` (m; two hands, with the ``measured`` joints (14,)): first
+    re-base the squeeze on where the hands are (:func:`rebase_squeeze`, see CARRY_SQUEEZE); None:
+    carry the commanded squeeze as it is.  Plans on ``expert``'s kinematic model only."""
     from flatlab_lerobot.primitives import ArmMotion, Primitive
 
+    if squeeze is not None and len(arms) == 2:
+        q = yield from rebase_squeeze(expert, q, measured, grip, squeeze)
     poses = expert.fk(q)
     best, best_err = None, float("inf")
     for dp in candidates:
@@ -422,13 +454,16 @@ def run_desk_episode(
     layout: DeskLayout | None = None,
     cell: CellConfig | None = None,
     on_step: Callable[[FlatLabSim, str, int], None] | None = None,
+    carry_squeeze: float | None = CARRY_SQUEEZE,
 ) -> DeskEpisode:
     """One ``clear_desk`` episode on ``layout`` (default: ``sample_desk(seed, config)``).
 
     ``strategy``: "expert" (each object's labelled strategy), "A"/"B" (that strategy for every
     object), or None (no action: the arms hold home for the whole episode length).
-    Per object it records: id, strategy, lifted (the hold rule was met within its budget),
-    cleared (lifted and off the table at the end), steps used, steps until lifted."""
+    ``carry_squeeze``: a two-hand carry first re-bases its squeeze on the measured hands, this far (m)
+    past them (CARRY_SQUEEZE; None: the commanded squeeze as it is, the carry up to stop 72).  Per object it records: id, strategy, lifted (the hold rule was
+    met within its budget), cleared (lifted and off the table at the end), steps used, steps until
+    lifted."""
     config = config or DeskConfig()
     layout = layout or sample_desk(seed, config)
     sim = make_desk_sim(layout, cell)
@@ -457,7 +492,8 @@ def run_desk_episode(
 
             expert = Expert(sim.cell, sim.control_dt)
             for i, it in enumerate(layout.items):
-                ep.per_object.append(_clear_one(sim, expert, i, strategies[i], config.budget[it.obj.strategy], record))
+                ep.per_object.append(_clear_one(sim, expert, i, strategies[i], config.budget[it.obj.strategy], record,
+                                                  carry_squeeze))
     except SimulationDiverged as exc:
         ep.failure = FailureReason.DIVERGED.text(str(exc))
     ok = cleared(sim)
@@ -480,9 +516,10 @@ def run_desk_episode(
     return ep
 
 
-def _clear_one(sim: FlatLabSim, expert, index: int, strategy: str, budget: int, record) -> dict:
-    """Lift ``objects[index]`` with ``strategy``, carry it off and go home, within ``budget`` steps
-    (the lift gets all but HOME_STEPS of them, so a failed attempt still ends at home)."""
+def _clear_one(sim: FlatLabSim, expert, index: int, strategy: str, budget: int, record, squeeze: float | None) -> dict:
+    """Lift ``objects[index]`` with ``strategy``, carry it off (``squeeze``: :func:`carry_off`) and
+    go home, within ``budget`` steps (the lift gets all but HOME_STEPS of them, so a failed attempt
+    still ends at home)."""
     sim.set_target(index)
     rec = {"object_id": sim.obj.id, "strategy": strategy, "lifted": False, "steps_to_lift": None, "steps": 0}
     gen = expert.episode(strategy, lambda: (sim.joint_positions(), sim.environment_state()))
@@ -498,7 +535,7 @@ def _clear_one(sim: FlatLabSim, expert, index: int, strategy: str, budget: int, 
             break
     q = np.r_[action[0:7], action[8:15]]
     grip = {"left": float(action[7]), "right": float(action[15])}
-    after = carry_off(expert, sim, q, grip) if rec["lifted"] else go_home(q, grip)
+    after = carry_off(expert, sim, q, grip, squeeze) if rec["lifted"] else go_home(q, grip)
     for stage, action in after:
         if steps >= budget:
             break

@@ -26,7 +26,14 @@ from dataclasses import dataclass, field, replace
 import mujoco
 import numpy as np
 
-from flatlab_lerobot.tasks.clear_desk import DeskConfig, DeskLayout, desk_cleared, run_desk_episode, sample_desk
+from flatlab_lerobot.tasks.clear_desk import (
+    CARRY_SQUEEZE,
+    DeskConfig,
+    DeskLayout,
+    desk_cleared,
+    run_desk_episode,
+    sample_desk,
+)
 from flatlab_lerobot.sim.core import HOLD_TIME, LIFT_HEIGHT, FlatLabSim
 from flatlab_lerobot.sim.robot import ARMS
 
@@ -349,15 +356,18 @@ def mean_squared_jerk(tcp: np.ndarray, dt: float) -> float:
     return float(np.mean(np.sum(jerk**2, axis=-1)))
 
 
-def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert", split: str | None = None) -> dict:
+def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert", split: str | None = None,
+                 carry_squeeze: float | None = CARRY_SQUEEZE) -> dict:
     """One episode of a scenario on the layout of ``seed``, with the scripted expert ("expert":
     each object's labelled strategy; "A"/"B": that one for every object; None: no action).
     ``split``: the catalog split of the desk's objects (default the scenario's, Test-beta).
+    ``carry_squeeze``: the expert's two-hand carry re-bases its squeeze this far (m) past the measured
+    hands (default CARRY_SQUEEZE; None: the commanded squeeze as it is).
     Returns plain-JSON metrics: success, objects cleared / in the layout, per-object results
     (lifted, cleared, steps), time/steps to completion, TCP jerk, wall time."""
     sc = SCENARIOS[scenario_id]
     config = sc.config(split)
-    ep = run_desk_episode(seed, strategy, config)
+    ep = run_desk_episode(seed, strategy, config, carry_squeeze=carry_squeeze)
     success = any(ep.success)
     n = ep.success.index(True) + 1 if success else len(ep.success)
     return {
@@ -365,6 +375,7 @@ def run_scenario(scenario_id: str, seed: int = 0, strategy: str | None = "expert
         "seed": seed,
         "split": config.split,
         "strategy": strategy,
+        "carry_squeeze": carry_squeeze,
         "object_ids": ep.object_ids,
         "success": success,
         "cleared": sum(o["cleared"] for o in ep.per_object),

@@ -51,6 +51,7 @@ from flatlab_lerobot.policies.executor.configuration_flatlab_executor import (
 from flatlab_lerobot.policies.strategy.configuration_flatlab_strategy import FlatLabStrategyConfig
 from flatlab_lerobot.policies.unified.observed_contact import CONTACT_CHOICES
 from flatlab_lerobot.strategies.a_push_to_edge import A_PASSES
+from flatlab_lerobot.strategies.b_squeeze import B_SQUEEZE
 
 STRATEGY_CHOICES = ("learned", "A", "B", "C")
 C_HEIGHTS_CHOICES = ("", "press", "all")  # continue_c_heights: off, the pressing hands, the pinching hand too
@@ -138,6 +139,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # within 3 mm but its mean lay 4 cm behind its centre, so B's carry let go of it short of the edge and it fell
     # back onto the table, twice
     carry_box_centre: bool = False
+    # with clear_all or retry_failed: before a two-hand carry-off, each hand's commanded position moves back, along the
+    # line between the hands, to where the hand is measured (observation.state) plus this much inward (m;
+    # tasks.clear_desk.rebase_squeeze; the expert's desk uses CARRY_SQUEEZE, 0.01).  A squeeze commanded 2.5 cm past the
+    # object's faces saturates the wrists (joint 6, 12 Nm), which then hold the object bent up to 0.2 rad off their
+    # commanded angle: the thin 2.2-kg cutboard_marble pitched out of such hands mid-carry (stop 73).  None: the
+    # commanded squeeze is carried as it is
+    carry_squeeze: float | None = None
     # with clear_all: an attempt on an object seen where the last attempt started (it was left on the table)
     # takes the generator's most probable strategy not yet tried on it, instead of asking again for the same one
     retry_next_strategy: bool = False
@@ -353,6 +361,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
         if self.carry_box_centre and not (self.clear_all or self.retry_failed):
             raise ValueError("--policy.carry_box_centre=true acts on the carry-off after a lift: it needs "
                              "--policy.clear_all=true or --policy.retry_failed=true")
+        if self.carry_squeeze is not None and not 0.0 <= self.carry_squeeze <= B_SQUEEZE:
+            raise ValueError(f"--policy.carry_squeeze: 0 to {B_SQUEEZE} m (B's own squeeze past the faces it touched), "
+                             f"got {self.carry_squeeze}")
+        if self.carry_squeeze is not None and not (self.clear_all or self.retry_failed):
+            raise ValueError("--policy.carry_squeeze acts on the carry-off after a lift: it needs --policy.clear_all=true "
+                             "or --policy.retry_failed=true")
         if self.a_side_arms and self.contact != "learned":
             raise ValueError("--policy.a_side_arms=true is for --policy.contact=learned (with observed, use "
                              f"--policy.contact_a_pusher_side and --policy.contact_a_grasp), got {self.contact!r}")

@@ -413,7 +413,9 @@ class _Episode:
             middle = _extent_middle if self.policy.config.carry_box_centre else _points_mean
             cands = carry_displacements(pts, middle(pts), obs.edge_x, arms)
             centre = lambda: middle(self.obs.object_points if len(self.obs.object_points) else pts)  # noqa: E731
-            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip)
+            measured = np.r_[obs.state[0:7], obs.state[8:15]]  # the arms' joints, as observed
+            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip,
+                                        self.policy.config.carry_squeeze, measured)
         else:
             actions = go_home(self.q, self.grip)
         last = None
