@@ -1106,6 +1106,8 @@ def test_carry_squeeze_lets_the_wrists_keep_a_thin_heavy_board_on_the_carry(tiny
             break
     assert len(gaps) == REBASE_STEPS + 1 and np.all(np.diff(gaps) > -1e-4)
     assert gaps[-1] - gaps[0] == (pytest.approx(0.0, abs=1e-3) if squeeze is None else pytest.approx(0.035, abs=0.01))
+    back = next(d for d in ep.log if "after" in d).get("squeeze_backoff")  # logged with the carry decision
+    assert back is None if squeeze is None else sum(back.values()) == pytest.approx(gaps[-1] - gaps[0], abs=2e-3)
     for _ in range(30):
         sim.step(ep.act(_desk_observed(sim)))
     assert sim.off_table(0) == (squeeze is not None)

@@ -211,9 +211,10 @@ def _cmd(ctx: Context, name: str) -> str:
 
 
 def _commands(ctx: Context, st: dict[str, Status], names: list[str]) -> list[str]:
-    """A 'commands' list: per stage the command that made (or will make) its result."""
+    """A 'commands' list: per stage the command that made (or will make) its result, each stage once (a stage can
+    be both a table's row and listed again below it)."""
     lines = ["<details><summary>commands</summary>", ""]
-    for n in names:
+    for n in dict.fromkeys(names):
         s = st[n]
         if s.state == "earlier":
             lines.append(f"- `{n}` (earlier run, {os.path.basename(str(s.record_path))}): `{provenance(s.record)['command']}`")

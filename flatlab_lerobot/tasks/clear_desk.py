@@ -364,16 +364,26 @@ def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float], sq
                                  squeeze, np.r_[measured[0:7], measured[8:15]])  # fmt: skip
 
 
-def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, float], squeeze: float):
-    """Two hands holding an object between them: move each hand's commanded position, along the
-    horizontal line between the hands, to where the hand is (``measured`` joints (14,)) plus
-    ``squeeze`` (m) inward -- never further out than that, never inward (orientations as commanded),
-    in REBASE_STEPS smooth steps on the expert's kinematic model.  Yields ("move", action (16,));
-    returns the last commanded joints (14,)."""
+def squeeze_backoff(expert, q: np.ndarray, measured: np.ndarray, squeeze: float) -> dict[str, float]:
+    """Per arm, how far (m) :func:`rebase_squeeze` moves its commanded position back: how far it lies
+    past the measured hand (``measured`` joints (14,)) along the horizontal line between the hands,
+    less ``squeeze``; never negative."""
     cmd, now = expert.fk(q), expert.fk(measured)
     u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])  # right hand -> left hand
     inward = {"left": -u, "right": u}
-    back = {a: max(0.0, float(np.dot(cmd[a][0] - now[a][0], inward[a])) - squeeze) for a in ARMS}
+    return {a: max(0.0, float(np.dot(cmd[a][0] - now[a][0], inward[a])) - squeeze) for a in ARMS}
+
+
+def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, float], squeeze: float):
+    """Two hands holding an object between them: move each hand's commanded position, along the
+    horizontal line between the hands, to where the hand is (``measured`` joints (14,)) plus
+    ``squeeze`` (m) inward -- never further out than that, never inward (:func:`squeeze_backoff`;
+    orientations as commanded), in REBASE_STEPS smooth steps on the expert's kinematic model.
+    Yields ("move", action (16,)); returns the last commanded joints (14,)."""
+    cmd = expert.fk(q)
+    u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])
+    inward = {"left": -u, "right": u}
+    back = squeeze_backoff(expert, q, measured, squeeze)
     qk = q
     for s in _smooth(REBASE_STEPS):
         qk = expert.ik({a: (cmd[a][0] - inward[a] * back[a] * s, cmd[a][1]) for a in ARMS}, qk)

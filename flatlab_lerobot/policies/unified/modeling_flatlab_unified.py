@@ -90,7 +90,7 @@ from flatlab_lerobot.strategies.a_push_to_edge import (
     pass_needed,
     pusher_backoff,
 )
-from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home
+from flatlab_lerobot.tasks.clear_desk import carry_and_release, carry_displacements, go_home, squeeze_backoff
 
 ALOFT_CLEARANCE = 0.03  # m: the object cloud's lowest point this far above the table top = held aloft
 RETRY_SAME_OBJECT = 0.05  # m: retry_next_strategy: a seen centre this close to the last attempt's is the same object
@@ -414,6 +414,10 @@ class _Episode:
             cands = carry_displacements(pts, middle(pts), obs.edge_x, arms)
             centre = lambda: middle(self.obs.object_points if len(self.obs.object_points) else pts)  # noqa: E731
             measured = np.r_[obs.state[0:7], obs.state[8:15]]  # the arms' joints, as observed
+            squeeze = self.policy.config.carry_squeeze
+            if squeeze is not None and len(arms) == 2:
+                back = squeeze_backoff(self.expert, self.q, measured, squeeze)
+                self.log[-1]["squeeze_backoff"] = {a: round(v, 4) for a, v in back.items()}
             actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip,
                                         self.policy.config.carry_squeeze, measured)
         else:
