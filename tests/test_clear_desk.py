@@ -188,6 +188,9 @@ def test_rebased_squeeze_carries_a_thin_heavy_board_off(capsys):
 
         desk.main(["--carry-squeeze", "0.05", "--out", "unused.json"])
     assert "--carry-squeeze: 0.05: want 0 to 0.025 m" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a learned policy runs the desk through flatlab eval
+        desk.main(["--policy", "outputs/unified", "--out", "unused.json"])
+    assert "--policy outputs/unified: the desk runs the scripted expert" in capsys.readouterr().err
 
 
 @pytest.mark.slow

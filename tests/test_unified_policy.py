@@ -1090,12 +1090,15 @@ def test_carry_squeeze_lets_the_wrists_keep_a_thin_heavy_board_on_the_carry(tiny
         if sim.is_success():
             break
     assert sim.is_success() and sim.holding_arms() == ("left", "right")
-    pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5, carry_squeeze="null" if squeeze is None else squeeze)
+    pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5,
+                carry_squeeze="null" if squeeze is None else squeeze)
     assert pol.config.carry_squeeze == squeeze
     ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
     ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
     ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
-    gap = lambda a: np.linalg.norm(np.subtract(*(p for p, _ in expert.fk(np.r_[a[0:7], a[8:15]]).values())))  # noqa: E731
+    def gap(a):  # the commanded distance between the hands
+        return np.linalg.norm(np.subtract(*(p for p, _ in expert.fk(np.r_[a[0:7], a[8:15]]).values())))
+
     gaps = [gap(action)]
     for _ in range(200):
         a = ep.act(_desk_observed(sim))

@@ -5,8 +5,8 @@ Each seed draws one desk layout (five rigid Test-beta objects, :mod:`flatlab_ler
 and runs one physics episode in which every object is cleared in turn with its labelled strategy
 (``--policy oracle``) or one fixed strategy (``slide_only``: A, ``lift_only``: B), each lifted object
 carried past the usable edge (two hands first re-base their squeeze ``--carry-squeeze`` past where they
-are measured, default ``CARRY_SQUEEZE``: 0.01 m; ``off`` is the carry of the desks measured up to stop 72).  Success: all five
-objects lifted (the 2-s hold rule) and none left on the table.  The paper reports 73.3 % for its
+are measured, default ``CARRY_SQUEEZE``: 0.01 m; ``off`` is the carry of the desks measured up to stop 72).
+Success: all five objects lifted (the 2-s hold rule) and none left on the table.  The paper reports 73.3 % for its
 learned framework on its desk (App., baseline comparison).
 
 Finished desks are appended to ``<out>.jsonl``; a rerun skips them (resumable).  The JSON holds the
@@ -64,6 +64,9 @@ def main(argv=None) -> int:
                          f"{CARRY_SQUEEZE}; off: the commanded squeeze as it is, the desks measured up to stop 72)")
     ap.add_argument("--out", type=Path, required=True, help="JSON to write (finished desks go to <out>.jsonl)")
     a = ap.parse_args(argv)
+    if a.policy not in POLICIES:
+        ap.error(f"--policy {a.policy}: the desk runs the scripted expert ({', '.join(POLICIES)}); a learned policy "
+                 "runs it through `flatlab eval --env.task=clear_desk --env.episode_length=1450`")  # fmt: skip
     try:
         seeds = parse_seeds(a.seeds)
     except ValueError:
@@ -101,7 +104,8 @@ def main(argv=None) -> int:
     res = {
         "what": f"clear_desk (five rigid {a.split} objects, one cell) with the scripted expert",
         "command": "flatlab desk " + " ".join(sys.argv[1:] if argv is None else argv),
-        "policy": a.policy, "split": a.split, "carry_squeeze": a.carry_squeeze, "seeds": seeds, "success": n_ok, "trials": len(per),
+        "policy": a.policy, "split": a.split, "carry_squeeze": a.carry_squeeze, "seeds": seeds, "success": n_ok,
+        "trials": len(per),
         "rate": n_ok / len(per) if per else None,
         "cleared_mean": sum(r["cleared"] for r in per) / len(per) if per else None,
         "wall_s_this_run": round(time.perf_counter() - t0, 1),

@@ -364,13 +364,18 @@ def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float], sq
                                  squeeze, np.r_[measured[0:7], measured[8:15]])  # fmt: skip
 
 
+def _inward(cmd: dict) -> dict[str, np.ndarray]:
+    """Per arm, the horizontal unit vector from its hand (``cmd``: ``expert.fk`` poses) towards the other hand."""
+    u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])  # right hand -> left hand
+    return {"left": -u, "right": u}
+
+
 def squeeze_backoff(expert, q: np.ndarray, measured: np.ndarray, squeeze: float) -> dict[str, float]:
     """Per arm, how far (m) :func:`rebase_squeeze` moves its commanded position back: how far it lies
     past the measured hand (``measured`` joints (14,)) along the horizontal line between the hands,
     less ``squeeze``; never negative."""
     cmd, now = expert.fk(q), expert.fk(measured)
-    u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])  # right hand -> left hand
-    inward = {"left": -u, "right": u}
+    inward = _inward(cmd)
     return {a: max(0.0, float(np.dot(cmd[a][0] - now[a][0], inward[a])) - squeeze) for a in ARMS}
 
 
@@ -381,9 +386,7 @@ def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, 
     orientations as commanded), in REBASE_STEPS smooth steps on the expert's kinematic model.
     Yields ("move", action (16,)); returns the last commanded joints (14,)."""
     cmd = expert.fk(q)
-    u = _horizontal_unit(cmd["left"][0] - cmd["right"][0])
-    inward = {"left": -u, "right": u}
-    back = squeeze_backoff(expert, q, measured, squeeze)
+    inward, back = _inward(cmd), squeeze_backoff(expert, q, measured, squeeze)
     qk = q
     for s in _smooth(REBASE_STEPS):
         qk = expert.ik({a: (cmd[a][0] - inward[a] * back[a] * s, cmd[a][1]) for a in ARMS}, qk)
@@ -471,9 +474,9 @@ def run_desk_episode(
     ``strategy``: "expert" (each object's labelled strategy), "A"/"B" (that strategy for every
     object), or None (no action: the arms hold home for the whole episode length).
     ``carry_squeeze``: a two-hand carry first re-bases its squeeze on the measured hands, this far (m)
-    past them (CARRY_SQUEEZE; None: the commanded squeeze as it is, the carry up to stop 72).  Per object it records: id, strategy, lifted (the hold rule was
-    met within its budget), cleared (lifted and off the table at the end), steps used, steps until
-    lifted."""
+    past them (CARRY_SQUEEZE; None: the commanded squeeze as it is, the carry up to stop 72).
+    Per object it records: id, strategy, lifted (the hold rule was met within its budget), cleared
+    (lifted and off the table at the end), steps used, steps until lifted."""
     config = config or DeskConfig()
     layout = layout or sample_desk(seed, config)
     sim = make_desk_sim(layout, cell)

@@ -365,8 +365,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.carry_squeeze: 0 to {B_SQUEEZE} m (B's own squeeze past the faces it touched), "
                              f"got {self.carry_squeeze}")
         if self.carry_squeeze is not None and not (self.clear_all or self.retry_failed):
-            raise ValueError("--policy.carry_squeeze acts on the carry-off after a lift: it needs --policy.clear_all=true "
-                             "or --policy.retry_failed=true")
+            raise ValueError("--policy.carry_squeeze acts on the carry-off after a lift: it needs "
+                             "--policy.clear_all=true or --policy.retry_failed=true")
         if self.a_side_arms and self.contact != "learned":
             raise ValueError("--policy.a_side_arms=true is for --policy.contact=learned (with observed, use "
                              f"--policy.contact_a_pusher_side and --policy.contact_a_grasp), got {self.contact!r}")
