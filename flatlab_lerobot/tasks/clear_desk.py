@@ -42,7 +42,7 @@ CARRY_SPEED = 0.10  # m/s, mean
 # each hand B_SQUEEZE (2.5 cm) past the face it touched; the object stops the hands and the error
 # lands on the weakest joint: the wrists (joint 6, 12 Nm) saturate and a hand holds the object bent
 # up to 0.2 rad off its commanded angle.  A thin 2.2-kg board (cutboard_marble) pitched out of such
-# hands mid-carry on 5 of the oracle's 8 failed Test-beta desks (stop 73).  Re-based, the command is
+# hands mid-carry on 6 of the oracle's 8 failed Test-beta desks (stop 73).  Re-based, the command is
 # 1 cm past where the hands are: the object stays clamped and the wrists keep their angles.
 CARRY_SQUEEZE = 0.01
 REBASE_STEPS = 5  # control steps of that move
