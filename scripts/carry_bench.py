@@ -34,12 +34,12 @@ def main(argv=None) -> int:
     ap.add_argument("--squeeze", default="off", help="the carry's re-based squeeze in m, or off (run_desk_episode)")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
-    from flatlab_lerobot.paper.desk import _squeeze
+    from flatlab_lerobot.paper.desk import parse_carry_squeeze
     from flatlab_lerobot.paper.pipeline import git_commit, machine_line
     from flatlab_lerobot.tasks.clear_desk import DeskConfig, DeskItem, DeskLayout, eligible_objects, run_desk_episode
 
     try:
-        squeeze = _squeeze(a.squeeze)
+        squeeze = parse_carry_squeeze(a.squeeze)
         scales = [float(v) for v in a.mass_scale.split(",")]
     except (argparse.ArgumentTypeError, ValueError) as e:
         ap.error(f"--squeeze / --mass-scale: {e}")

@@ -1011,6 +1011,30 @@ def _desk_observed(sim, cloud_shift=None) -> "Observed":
     return Observed(sim.joint_positions().astype(float), sim.cell.calibration(), np.zeros((N, 3)), pts)
 
 
+def _expert_b_holds(sim):
+    """The scripted expert's B lifts ``sim``'s target and holds it in both hands; returns the expert and its last
+    action."""
+    from flatlab_lerobot.strategies import Expert
+
+    expert = Expert(sim.cell, sim.control_dt)
+    gen = expert.episode("B", lambda: (sim.joint_positions(), sim.environment_state()))
+    for _ in range(200):
+        stage, _, action = next(gen)
+        sim.step(action)
+        if sim.is_success():
+            break
+    assert sim.is_success() and sim.holding_arms() == ("left", "right")
+    return expert, action
+
+
+def _episode_after_b_hold(pol, sim, action) -> _Episode:
+    """``pol``'s state machine as if its own B attempt had just reached the final hold with ``action``."""
+    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
+    ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
+    ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
+    return ep
+
+
 def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
     """clear_all (the clear_desk scenario): after the final hold, an object cloud held aloft is carried
     past the usable edge by the arms that lifted it and let go, the env's next object becomes the
@@ -1018,25 +1042,15 @@ def test_clear_all_carries_what_it_lifted_off_the_table_and_starts_over(tiny):
     the attempt is retried); with nothing on the table the policy holds."""
     from flatlab_lerobot.catalog import get_object
     from flatlab_lerobot.sim.robot import HOME_Q
-    from flatlab_lerobot.strategies import Expert
     from flatlab_lerobot.tasks.clear_desk import DeskItem, DeskLayout, advance_target, make_desk_sim
 
     lay = DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),
                          DeskItem(get_object("painting_square_modern"), -0.16, 0.0, -0.1)))  # fmt: skip
     sim = make_desk_sim(lay)
-    expert = Expert(sim.cell, sim.control_dt)
-    gen = expert.episode("B", lambda: (sim.joint_positions(), sim.environment_state()))
-    for _ in range(200):  # the scripted expert lifts the first object (B) and holds it
-        stage, _, action = next(gen)
-        sim.step(action)
-        if sim.is_success():
-            break
-    assert sim.is_success() and sim.holding_arms() == ("left", "right")
+    _, action = _expert_b_holds(sim)  # the scripted expert lifts the first object (B) and holds it
 
     pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5)
-    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
-    ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
-    ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
+    ep = _episode_after_b_hold(pol, sim, action)
     for _ in range(200):  # the policy takes over after its hold, on observations only
         sim.step(ep.act(_desk_observed(sim)))
         advance_target(sim)
@@ -1078,24 +1092,14 @@ def test_carry_squeeze_lets_the_wrists_keep_a_thin_heavy_board_on_the_carry(tiny
     let it pitch out of the hands onto the table, re-based it leaves the table (tests/test_clear_desk.py's case
     for the expert).  The commanded hands open by about the wrists' bend; none moves inward."""
     from flatlab_lerobot.catalog import get_object
-    from flatlab_lerobot.strategies import Expert
     from flatlab_lerobot.tasks.clear_desk import REBASE_STEPS, DeskItem, DeskLayout, make_desk_sim
 
     sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("cutboard_marble"), -0.013, 0.194, 0.243),)))
-    expert = Expert(sim.cell, sim.control_dt)
-    gen = expert.episode("B", lambda: (sim.joint_positions(), sim.environment_state()))
-    for _ in range(200):
-        stage, _, action = next(gen)
-        sim.step(action)
-        if sim.is_success():
-            break
-    assert sim.is_success() and sim.holding_arms() == ("left", "right")
+    expert, action = _expert_b_holds(sim)
     pol = _load(tiny["artifact"], strategy="B", clear_all="true", settle_s=0.5,
                 carry_squeeze="null" if squeeze is None else squeeze)
     assert pol.config.carry_squeeze == squeeze
-    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
-    ep.q, ep.grip, ep.last = np.r_[action[0:7], action[8:15]], {"left": float(action[7]), "right": float(action[15])}, action
-    ep.index, ep.started, ep.attempts, ep.lift_arms = len(STRATEGIES["B"]) - 1, True, ["B"], ("left", "right")
+    ep = _episode_after_b_hold(pol, sim, action)
     def gap(a):  # the commanded distance between the hands
         return np.linalg.norm(np.subtract(*(p for p, _ in expert.fk(np.r_[a[0:7], a[8:15]]).values())))
 

@@ -39,7 +39,7 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def _squeeze(text: str) -> float | None:
+def parse_carry_squeeze(text: str) -> float | None:
     """--carry-squeeze: 'off' or metres in [0, B_SQUEEZE] (B commands each hand B_SQUEEZE past the face it touched)."""
     if text == "off":
         return None
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="test_beta", choices=BENCHMARK_SPLITS,
                     help="catalog split of the desk's objects (default test_beta, the benchmark's desk; train: a "
                          "development desk)")
-    ap.add_argument("--carry-squeeze", type=_squeeze, default=CARRY_SQUEEZE,
+    ap.add_argument("--carry-squeeze", type=parse_carry_squeeze, default=CARRY_SQUEEZE,
                     help=f"m: a two-hand carry first re-bases its squeeze this far past where the hands are (default "
                          f"{CARRY_SQUEEZE}; off: the commanded squeeze as it is, the desks measured up to stop 72)")
     ap.add_argument("--out", type=Path, required=True, help="JSON to write (finished desks go to <out>.jsonl)")

@@ -357,11 +357,14 @@ def _horizontal_unit(v: np.ndarray) -> np.ndarray:
 def carry_off(expert, sim: FlatLabSim, q: np.ndarray, grip: dict[str, float], squeeze: float | None = CARRY_SQUEEZE):
     """After a successful lift: carry the target past the usable edge, let go, go home (the
     expert's call: holding arms, object and its centre from the simulation; :func:`carry_and_release`,
-    ``squeeze``: its re-based squeeze).  Yields (stage, action (16,))."""
+    ``squeeze``: a two-hand carry's re-based squeeze, :func:`squeeze_backoff`).  Yields (stage, action (16,))."""
     arms = sim.holding_arms() or ARMS
-    measured = sim.joint_positions()
+    back = None
+    if squeeze is not None and len(arms) == 2:
+        measured = sim.joint_positions()
+        back = squeeze_backoff(expert, q, np.r_[measured[0:7], measured[8:15]], squeeze)
     yield from carry_and_release(expert, arms, carry_candidates(sim, arms), lambda: sim.object_pose()[0], q, grip,
-                                 squeeze, np.r_[measured[0:7], measured[8:15]])  # fmt: skip
+                                 back)  # fmt: skip
 
 
 def _inward(cmd: dict) -> dict[str, np.ndarray]:
@@ -379,14 +382,13 @@ def squeeze_backoff(expert, q: np.ndarray, measured: np.ndarray, squeeze: float)
     return {a: max(0.0, float(np.dot(cmd[a][0] - now[a][0], inward[a])) - squeeze) for a in ARMS}
 
 
-def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, float], squeeze: float):
-    """Two hands holding an object between them: move each hand's commanded position, along the
-    horizontal line between the hands, to where the hand is (``measured`` joints (14,)) plus
-    ``squeeze`` (m) inward -- never further out than that, never inward (:func:`squeeze_backoff`;
-    orientations as commanded), in REBASE_STEPS smooth steps on the expert's kinematic model.
-    Yields ("move", action (16,)); returns the last commanded joints (14,)."""
+def rebase_squeeze(expert, q: np.ndarray, grip: dict[str, float], back: dict[str, float]):
+    """Two hands holding an object between them: move each hand's commanded position ``back[arm]`` (m,
+    :func:`squeeze_backoff`: to where the hand is measured plus the squeeze kept) outward along the
+    horizontal line between the hands (orientations as commanded), in REBASE_STEPS smooth steps on
+    the expert's kinematic model.  Yields ("move", action (16,)); returns the last commanded joints (14,)."""
     cmd = expert.fk(q)
-    inward, back = _inward(cmd), squeeze_backoff(expert, q, measured, squeeze)
+    inward = _inward(cmd)
     qk = q
     for s in _smooth(REBASE_STEPS):
         qk = expert.ik({a: (cmd[a][0] - inward[a] * back[a] * s, cmd[a][1]) for a in ARMS}, qk)
@@ -395,18 +397,18 @@ def rebase_squeeze(expert, q: np.ndarray, measured: np.ndarray, grip: dict[str, 
 
 
 def carry_and_release(expert, arms: tuple[str, ...], candidates: list[np.ndarray], centre, q: np.ndarray,
-                      grip: dict[str, float], squeeze: float | None = None, measured: np.ndarray | None = None):
+                      grip: dict[str, float], backoff: dict[str, float] | None = None):
     """Carry the hands of ``arms`` by the first of ``candidates`` (:func:`carry_displacements`) whose
     plan the arms can follow within 5 mm (else the best one), let go, go home.  Yields (stage,
     action (16,)).  ``q`` (14,) / ``grip`` are the last commanded joints / gripper widths;
     ``centre()`` is the object's centre once carried (the hands back away from it), asked when
-    the release is planned.  ``squeeze`` (m; two hands, with the ``measured`` joints (14,)): first
-    re-base the squeeze on where the hands are (:func:`rebase_squeeze`, see CARRY_SQUEEZE); None:
-    carry the commanded squeeze as it is.  Plans on ``expert``'s kinematic model only."""
+    the release is planned.  ``backoff`` (both hands hold; :func:`squeeze_backoff`, see CARRY_SQUEEZE): first
+    re-base the squeeze on where the hands are (:func:`rebase_squeeze`); None: carry the commanded
+    squeeze as it is.  Plans on ``expert``'s kinematic model only."""
     from flatlab_lerobot.primitives import ArmMotion, Primitive
 
-    if squeeze is not None and len(arms) == 2:
-        q = yield from rebase_squeeze(expert, q, measured, grip, squeeze)
+    if backoff is not None:
+        q = yield from rebase_squeeze(expert, q, grip, backoff)
     poses = expert.fk(q)
     best, best_err = None, float("inf")
     for dp in candidates:

@@ -413,13 +413,12 @@ class _Episode:
             middle = _extent_middle if self.policy.config.carry_box_centre else _points_mean
             cands = carry_displacements(pts, middle(pts), obs.edge_x, arms)
             centre = lambda: middle(self.obs.object_points if len(self.obs.object_points) else pts)  # noqa: E731
-            measured = np.r_[obs.state[0:7], obs.state[8:15]]  # the arms' joints, as observed
-            squeeze = self.policy.config.carry_squeeze
+            squeeze, back = self.policy.config.carry_squeeze, None
             if squeeze is not None and len(arms) == 2:
+                measured = np.r_[obs.state[0:7], obs.state[8:15]]  # the arms' joints, as observed
                 back = squeeze_backoff(self.expert, self.q, measured, squeeze)
                 self.log[-1]["squeeze_backoff"] = {a: round(v, 4) for a, v in back.items()}
-            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip,
-                                        self.policy.config.carry_squeeze, measured)
+            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip, back)
         else:
             actions = go_home(self.q, self.grip)
         last = None
