@@ -1416,6 +1416,43 @@ def test_a_pusher_side_pushes_with_the_arm_on_the_seen_objects_side(tiny, switch
         FlatLabUnifiedConfig(a_side_arms=True, contact="observed")
 
 
+@pytest.mark.parametrize("backoff", [False, True])
+def test_a_side_arms_pusher_backs_off_when_the_other_arm_grasps(tiny, monkeypatch, backoff):
+    """a_side_arms with contact_a_backoff (learned poses): when the pushes leave the object on the other arm's
+    side, at A's pre-approach the pusher backs off from its commanded hand as the expert's does (pusher_backoff),
+    out of the lifted object's way; without the switch it stays where its release left it.  Learned desk 22
+    (stop 74): the lifted CD case rose into the idle hand and was carried off before the hold rule was met."""
+    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
+    from flatlab_lerobot.strategies.a_push_to_edge import A_PREAPPROACH, pusher_backoff
+
+    sides = iter(["left", "right"])  # the first touch sees the object left of the centre line, the pre-approach right
+    monkeypatch.setattr(M, "a_side_arm", lambda pts: next(sides))
+    posed = _posed_stages(monkeypatch)
+    kw = {"contact_a_backoff": "true"} if backoff else {}
+    pol = _load(tiny["artifact"], strategy="A", a_side_arms="true", continue_from_hand="AC",
+                continue_a_preapproach_line="true", max_push_passes="1", **kw)  # fmt: skip
+    env = _env()
+    obs, _ = env.reset(seed=3)
+    pol.reset()
+    for _ in range(200):
+        obs, *_ = env.step(pol.select_action(_batch(obs))[0].numpy())
+        if pol.stage_indices[0] > A_PREAPPROACH:
+            break
+    env.close()
+    prim, pre, _ = next((p, d, o) for p, d, o in posed if d.get("index") == A_PREAPPROACH)
+    assert pre["a_arm"]["side"] == "right", pre
+    if backoff:  # from the commanded hand (where the release left it) to the expert's back-off from it
+        assert "left" in pre["arms"] and "backoff" in pre["heights"]["left"], pre
+        hand = prim.motions["left"].start[0]
+        np.testing.assert_allclose(prim.motions["left"].end[0], pusher_backoff("left", hand))
+        np.testing.assert_allclose(pre["heights"]["left"]["backoff"], pusher_backoff("left", hand))
+    else:
+        assert "left" not in pre["arms"] and "left" not in prim.motions, pre
+    with pytest.raises(ValueError, match="contact_a_backoff=true needs"):
+        FlatLabUnifiedConfig(contact_a_backoff=True)
+    assert FlatLabUnifiedConfig(a_side_arms=True, contact_a_backoff=True).contact_a_backoff
+
+
 def test_retry_switch_after_gives_each_strategy_that_many_attempts(tiny, monkeypatch):
     """retry_switch_after=k: on an object left in place each strategy, most probable first, gets k attempts
     before the next one; all three tried k times, from the top again; an object seen elsewhere starts afresh."""

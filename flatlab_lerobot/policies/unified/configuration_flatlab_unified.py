@@ -297,8 +297,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # learned motion of the other arm is mirrored across the object's centre line) and the pre-approach
     # runs as a Cartesian line from the hand instead of a joint-space transit (observed_contact.py)
     contact_a_grasp: bool = False
-    # with contact_a_grasp: at A's pre-approach the other arm (the pusher) backs off from where its hand is,
-    # as the expert's does (5 cm back, 15 cm to its side, 5 cm up), out of the lifted object's way
+    # with contact_a_grasp (observed contact) or a_side_arms (learned poses): at A's pre-approach the other arm (the
+    # pusher) backs off from where its hand is, as the expert's does (5 cm back, 15 cm to its side, 5 cm up), out of
+    # the lifted object's way
     contact_a_backoff: bool = False
     # with contact=observed: A's lift of an object whose seen overhang droops (a sheet) rises at least the
     # seen length + 8 cm, as the expert lifts a sheet (observed_contact.py)
@@ -389,8 +390,9 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
                              "--policy.continue_from_hand (the stages they change start at the hand)")
         if not 0.0 <= self.continue_press_deeper <= 0.02:
             raise ValueError(f"--policy.continue_press_deeper: metres in [0, 0.02], got {self.continue_press_deeper}")
-        if self.contact_a_backoff and not self.contact_a_grasp:
-            raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true (the grasping side)")
+        if self.contact_a_backoff and not (self.contact_a_grasp or self.a_side_arms):
+            raise ValueError("--policy.contact_a_backoff=true needs --policy.contact_a_grasp=true or "
+                             "--policy.a_side_arms=true (the arms by the seen side)")
         if self.retry_next_strategy and not self.clear_all:
             raise ValueError("--policy.retry_next_strategy=true needs --policy.clear_all=true (desk retries)")
         if self.retry_track and not self.retry_next_strategy:

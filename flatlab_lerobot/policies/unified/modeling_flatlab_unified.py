@@ -624,7 +624,8 @@ class _Episode:
                 heights[a]["closed"] = True
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
-        if a_grasp and self.policy.config.contact_a_backoff and self.strategy == "A" and self.index == A_PREAPPROACH:
+        side_grasp = a_grasp or (self.policy.config.a_side_arms and self.policy.config.contact == "learned")
+        if side_grasp and self.policy.config.contact_a_backoff and self.strategy == "A" and self.index == A_PREAPPROACH:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
         self.log.append({"index": self.index, "primitive": spec.primitive, "arms": arms, "active": prob,
@@ -677,7 +678,10 @@ class _Episode:
     def _pusher_backoff(self, arms, motions, heights, duration, obs: Observed, commanded_fk, spec):
         """``contact_a_backoff`` at A's pre-approach: the arm off the seen side (the pusher) backs off from
         its commanded hand as the expert's does (``pusher_backoff``), replacing any learned motion of it;
-        otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.
+        otherwise it stays where its release left it, 13 cm above the table, in the lifted object's way.  With
+        ``contact_a_grasp`` (observed contact) or ``a_side_arms`` (learned poses): both decide the pusher and the
+        grasping arm by the seen side.  Learned desk 22 (stop 74): the lifted CD case rose into the pusher's idle
+        hand, the env's hold rule restarted, and the carry took it off the table before the rule was met.
         Returns (arms, duration)."""
         if self.a_side is None or self.a_pusher == self.a_side:  # the pusher grasps too: nothing to back off
             return arms, duration
