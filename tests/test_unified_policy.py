@@ -1355,6 +1355,54 @@ def test_retry_next_strategy_tries_the_next_most_probable_on_an_object_left_in_p
         FlatLabUnifiedConfig(retry_next_strategy=True)
 
 
+def test_hold_still_holds_on_while_the_object_slides_and_lets_go_of_one_still_sliding(tiny):
+    """hold_still (with clear_all): at the end of the final hold the carry waits while the object cloud, relative to
+    the lifting hands, has moved hold_still or more within the last 2 s; an object that stops sliding is carried
+    (the wait logged), one still sliding when hold_still_max_s has run out is let go (the arms go home), one that
+    never slid is carried at once (nothing logged), and one not seen aloft is not held on."""
+    from flatlab_lerobot.policies.unified.modeling_flatlab_unified import HOLD_STILL_S
+
+    pol = _load(tiny["artifact"], clear_all="true", hold_still="0.005", hold_still_max_s="3.0")
+    window, cap = round(HOLD_STILL_S / pol.config.control_dt), round(3.0 / pol.config.control_dt)
+    cell = np.r_[0.75, 0.6, np.zeros(5)]
+    aloft = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[0.3, 0.0, 0.9] + np.zeros((K, 3)))
+    on_table = Observed(np.zeros(16), cell, np.zeros((N, 3)), np.r_[0.3, 0.0, 0.76] + np.zeros((K, 3)))
+
+    def hold(slides: list[bool], obs=aloft):
+        """Feed one sample per step (sliding 2 mm per step or still) and ask at every step after the hold's own
+        length; returns the episode and how many steps it held on."""
+        ep = _Episode(pol, None, None)
+        ep.index, ep.q, ep.grip = 0, np.zeros(14), {"left": 0.04, "right": 0.04}
+        at, extra = np.zeros(3), 0
+        for k, slide in enumerate(slides):
+            at = at + (np.r_[0.0, 0.0, -0.002] if slide else 0.0)
+            ep.hold_rel.append(at.copy())
+            if k >= window - 1:
+                if not ep._hold_on(obs):
+                    return ep, extra
+                extra += 1
+        raise AssertionError("still holding on")
+
+    ep, extra = hold([False] * window)  # never slid: carried at once, nothing logged
+    assert extra == 0 and not ep.hold_slid and not any("hold_still" in d for d in ep.log)
+    # slid 6 mm as the hold ended, then stopped: carried once the 2-s window starts within 5 mm of where it stopped
+    ep, extra = hold([False] * (window - 3) + [True] * 3 + [False] * window)
+    assert extra == window - 3 and not ep.hold_slid
+    assert ep.log[-1]["hold_still"] == {"extra_steps": window - 3, "still": True, "moved": 0.004}
+    ep, extra = hold([True] * (window + 3 * cap))  # still sliding when the wait runs out: let go, not carried
+    assert extra == cap and ep.hold_slid and ep.log[-1]["hold_still"]["still"] is False
+    next(ep._after_hold(aloft))
+    assert ep.log[-1]["after"] == "home"
+    ep, extra = hold([True] * window, obs=on_table)  # not aloft: the carry or the way home decides at once
+    assert extra == 0 and not ep.hold_slid
+    with pytest.raises(ValueError, match="--policy.hold_still"):
+        FlatLabUnifiedConfig(hold_still=0.005)  # without clear_all
+    with pytest.raises(ValueError, match="--policy.hold_still"):
+        FlatLabUnifiedConfig(hold_still=0.2, clear_all=True)
+    with pytest.raises(ValueError, match="--policy.hold_still_max_s"):
+        FlatLabUnifiedConfig(hold_still_max_s=-1.0)
+
+
 @pytest.mark.parametrize("rank", ["current", "first_sight"])
 def test_retry_rank_first_sight_keeps_the_ranking_of_the_untouched_object(tiny, monkeypatch, rank):
     """retry_failed with retry_switch_after=2: the generator ranks the untouched object C, A, B and every later

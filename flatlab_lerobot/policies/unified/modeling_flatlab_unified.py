@@ -101,6 +101,7 @@ LIFTED_RISE = 0.05  # m: retry_failed: the seen top risen less than this since t
 STALL_TOL = 0.01  # m: continue_press_stalled: a push pass that changed the seen missing overhang by less moved nothing
 RESPONSE_FOLD_RISE = 0.02  # m: retry_on_response: C's squeeze raised the seen top less than this = no fold (rigid)
 RESPONSE_DROOP = 0.03  # m: retry_on_response: the object cloud this far below the table top after a push = a sheet
+HOLD_STILL_S = 2.0  # s: hold_still: how long the seen object must keep still in the hands (the benchmark's hold time)
 C_SQUEEZED = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "squeeze") + 1  # C's stage after its squeeze
 C_STRADDLE = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "press")  # C's hand straddles the fold
 C_PINCH = next(i for i, s in enumerate(STAGE_SPECS["C"]) if s.primitive == "grasp")  # ... then pinches it
@@ -223,6 +224,9 @@ class _Episode:
         self.stalled = 0  # continue_press_stalled: push passes in a row that found the object where the last one did
         self.start_top: float | None = None  # retry_failed: the object cloud's seen top when the attempt started
         self.hold_checked = False  # retry_failed: the attempt's final hold ended and was judged
+        self.hold_rel: list[np.ndarray] = []  # hold_still: per step of the final hold, the seen object centre - hands
+        self.hold_extra = 0  # hold_still: control steps the final hold has gone on past its own length
+        self.hold_slid = False  # hold_still: the object was still seen sliding in the hands when the hold ran out
 
     def act(self, obs: Observed) -> np.ndarray:
         self.obs = obs
@@ -242,6 +246,8 @@ class _Episode:
             self.start_top = float(pts[:, 2].max()) if len(pts) else None
             self.attempts.append(self.strategy)
         n_stages = len(STRATEGIES[self.strategy])
+        if self.policy.config.hold_still is not None and self.index == n_stages - 1 and self.after is None:
+            self._record_hold(obs)
         while True:
             if self.after is not None:
                 if self._emit(self.after):
@@ -260,6 +266,9 @@ class _Episode:
                 self.q, self.grip = self.expert.runner.q.copy(), dict(self.expert.runner.grip)
             if self.index + 1 >= n_stages:
                 if self.policy.config.clear_all:
+                    if self._hold_on(obs):  # hold_still: the object is still seen moving in the hands
+                        self.stage = "hold"
+                        return self.last
                     self.after = self._after_hold(obs)
                     continue
                 if self._failed_after_hold(obs):  # retry_failed: not aloft after the hold, go home and try again
@@ -324,6 +333,40 @@ class _Episode:
             self.log.append({"index": self.index, "retry_failed": "nothing lifted", "rise": round(rise, 4)})
             return True
         self.log.append({"index": self.index, "quick_retry": True})
+        return True
+
+    def _record_hold(self, obs: Observed) -> None:
+        """``hold_still``: one step of the final hold: the mean of the object cloud relative to the mean of the lifting
+        hands (forward kinematics of the observed joints)."""
+        pts = obs.object_points
+        if len(pts):
+            fk = self.expert.fk(obs.q14)
+            hands = np.mean([fk[a][0] for a in (self.lift_arms or ARMS)], axis=0)
+            self.hold_rel.append(np.asarray(pts, float).mean(0) - hands)
+
+    def _hold_on(self, obs: Observed) -> bool:
+        """``hold_still``: whether the final hold, at its end, goes on one more step.  The benchmark counts an object
+        lifted once it was held aloft for 2 s in which it moved less than 1 cm relative to the holding hands; an object
+        carried off the table before that is off it uncounted, for good.  So the carry waits until the object cloud,
+        relative to the lifting hands, has stayed within ``hold_still`` of where it was HOLD_STILL_S earlier (each
+        step's sample against the window's first), for at most ``hold_still_max_s`` past the hold's own length.  An
+        object still seen sliding then is not carried (``hold_slid``): the arms let go and go home, as after a failed
+        lift, and the next attempt starts from where it falls.  An object not seen aloft is not held on (the carry or
+        the way home decides, as without the switch)."""
+        cfg = self.policy.config
+        if cfg.hold_still is None or not self._aloft(obs):
+            return False
+        n = round(HOLD_STILL_S / cfg.control_dt)
+        window = self.hold_rel[-n:]
+        moved = max((float(np.linalg.norm(r - window[0])) for r in window), default=0.0)
+        still = len(window) >= n and moved < cfg.hold_still
+        if still or self.hold_extra >= round(cfg.hold_still_max_s / cfg.control_dt):
+            self.hold_slid = not still
+            if self.hold_extra or not still:
+                self.log.append({"index": self.index, "hold_still": {"extra_steps": self.hold_extra, "still": still,
+                                                                     "moved": round(moved, 4)}})
+            return False
+        self.hold_extra += 1
         return True
 
     def _failed_after_hold(self, obs: Observed) -> bool:
@@ -406,7 +449,7 @@ class _Episode:
         on the kinematic model from the observed cloud and cell instead of the simulation); else go home.
         Then (``settle``) hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
         pts = obs.object_points
-        aloft = self._aloft(obs)
+        aloft = self._aloft(obs) and not self.hold_slid  # hold_still: an object still sliding is let go, not carried
         arms = self.lift_arms or ARMS
         self.log.append({"index": self.index, "after": "carry" if aloft else "home", "arms": list(arms)})
         if aloft:
@@ -489,6 +532,7 @@ class _Episode:
         self.a_pusher, self.first_press_z = None, {}
         self.last_missing, self.stalled = None, 0
         self.start_top, self.hold_checked = None, False
+        self.hold_rel, self.hold_extra, self.hold_slid = [], 0, False
 
     # -------------------------------------------------------------- decisions from observations
     def _skip_pass(self, obs: Observed) -> bool:
