@@ -1,7 +1,9 @@
 """Shared pytest setup.  MuJoCo picks its GL backend when first imported, so the headless EGL
 backend is selected here, before any test module imports mujoco."""
 
+import importlib.util
 import os
+from pathlib import Path
 
 import pytest
 
@@ -27,3 +29,16 @@ def tiny_scene_catalog(tmp_path):
         return scenes, mats, good
 
     return write
+
+
+@pytest.fixture
+def script():
+    """A loader of ``scripts/<name>.py`` as a module (the scripts folder is not a package)."""
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load

@@ -1,24 +1,13 @@
 """scripts/desk_objects.py: what became of every object of a desk (the uncounted carries in docs/unified.md)."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "desk_objects.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("desk_objects", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_desk_objects_reports_when_each_object_left_the_table_and_whether_it_counted(tmp_path, capsys):
+def test_desk_objects_reports_when_each_object_left_the_table_and_whether_it_counted(script, tmp_path, capsys):
     out = tmp_path / "desks.jsonl"
-    assert _script().main(["--policy", "oracle", "--desks", "24", "--out", str(out), "--",
+    assert script("desk_objects").main(["--policy", "oracle", "--desks", "24", "--out", str(out), "--",
                            "--env.task=clear_desk", "--env.episode_length=300", "--env.obs_pixels=false",
                            "--env.obs_pointcloud=false"]) == 0  # fmt: skip
     row = json.loads(out.read_text().splitlines()[0])
@@ -29,6 +18,6 @@ def test_desk_objects_reports_when_each_object_left_the_table_and_whether_it_cou
     assert f"desk 24: cleared {sum(row['cleared'])}/5" in capsys.readouterr().out
 
 
-def test_desk_objects_needs_the_desk_task(tmp_path):
+def test_desk_objects_needs_the_desk_task(script, tmp_path):
     with pytest.raises(SystemExit):
-        _script().main(["--policy", "oracle", "--desks", "24", "--out", str(tmp_path / "x.jsonl")])
+        script("desk_objects").main(["--policy", "oracle", "--desks", "24", "--out", str(tmp_path / "x.jsonl")])

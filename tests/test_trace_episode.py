@@ -1,23 +1,12 @@
 """scripts/trace_episode.py: one flatlab-eval trial traced stage by stage (the failure reasons in docs/unified.md)."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "trace_episode.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("trace_episode", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_trace_prints_the_trial_outcome_and_one_line_per_stage(capsys):
-    main = _script().main
+def test_trace_prints_the_trial_outcome_and_one_line_per_stage(script, capsys):
+    main = script("trace_episode").main
     assert main(["--policy", "oracle", "--object", "ref_box", "--trial", "0", "--",
                  "--env.episode_length=40", "--env.obs_pixels=false", "--env.obs_pointcloud=false"]) == 0  # fmt: skip
     out = capsys.readouterr().out.splitlines()
@@ -28,6 +17,6 @@ def test_trace_prints_the_trial_outcome_and_one_line_per_stage(capsys):
     assert out[2 + len(stages)].startswith("end:   40"), out
 
 
-def test_trace_refuses_flags_it_would_not_pass_on():
+def test_trace_refuses_flags_it_would_not_pass_on(script):
     with pytest.raises(SystemExit):
-        _script().main(["--policy", "oracle", "--object", "ref_box", "--", "--trials=3"])
+        script("trace_episode").main(["--policy", "oracle", "--object", "ref_box", "--", "--trials=3"])
