@@ -668,7 +668,7 @@ class _Episode:
                 heights[a]["closed"] = True
             motions[a] = ArmMotion((p0, R0), (p1, R1), (g0, g1))
             duration = max(duration, spec.for_motion(p0, p1))
-        side_grasp = a_grasp or (self.policy.config.a_side_arms and self.policy.config.contact == "learned")
+        side_grasp = a_grasp or self.policy.config.a_side_arms  # the config holds a_side_arms to contact=learned
         if side_grasp and self.policy.config.contact_a_backoff and self.strategy == "A" and self.index == A_PREAPPROACH:
             arms, duration = self._pusher_backoff(arms, motions, heights, duration, obs, commanded_fk, spec)
         self.lift_arms = tuple(arms)
