@@ -250,8 +250,12 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     assert not re.search(r"\s(run)\s", capsys.readouterr().out)
     # same preset and seeds: a forced rerun of the training and its evaluation gives the same tables
     before = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
+    trained = st["strategy_train_cpu"].record["metrics"]
+    assert len(trained["model_sha256"]) == 64 and len(trained["content_sha256"]) == 64
     assert paper_main([*args, "--force", "strategy_train_cpu", "strategy_cpu", "--no-render"]) == 0
     after = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
+    retrained = P.statuses(P.context("tiny", out, res))["strategy_train_cpu"].record["metrics"]
+    assert retrained["model_sha256"] == trained["model_sha256"]  # bit-identical weights, and the record says so
     assert after["paper_stage"]["created"] >= before["paper_stage"]["created"]
     for key in ("per_split", "per_category", "per_object", "selection"):
         assert after[key] == before[key], key
@@ -275,6 +279,25 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     ctx = P.context("tiny", out, res)
     row = next(line for line in R.runs_table(ctx, P.statuses(ctx)).splitlines() if line.startswith("| `eval_oracle` |"))
     assert "(2 runs)" in row
+
+
+def test_output_digests_follow_the_data_not_the_run(tmp_path):
+    """A stage record's ``content_sha256`` hashes arrays, tables and weights, not a json's wall time; its
+    ``model_sha256`` is the last numbered checkpoint's weights (``last`` is a link to it)."""
+    out = tmp_path / "train"
+    for step, w in (("000002", b"w2"), ("000004", b"w4")):
+        (out / "checkpoints" / step / "pretrained_model").mkdir(parents=True)
+        (out / "checkpoints" / step / "pretrained_model" / "model.safetensors").write_bytes(w)
+    (out / "train_config.json").write_text('{"wall_s": 1.0}')
+    files = lambda: [p for p in out.rglob("*") if p.is_file()]  # noqa: E731
+    first = P._content_hashes(out, files())
+    assert first["model_sha256"] == __import__("hashlib").sha256(b"w4").hexdigest()
+    (out / "train_config.json").write_text('{"wall_s": 2.0}')
+    assert P._content_hashes(out, files()) == first
+    (out / "checkpoints" / "000002" / "pretrained_model" / "model.safetensors").write_bytes(b"other")
+    moved = P._content_hashes(out, files())
+    assert moved["content_sha256"] != first["content_sha256"] and moved["model_sha256"] == first["model_sha256"]
+    assert P._content_hashes(tmp_path / "none", []) == {}
 
 
 def test_a_killed_run_ends_at_its_logs_last_write_and_a_resume_adds_it(tmp_path):

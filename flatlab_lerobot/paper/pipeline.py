@@ -488,10 +488,44 @@ def _trials_saved(out: Path) -> int:
     return len(saved_trials(out / "results.jsonl"))
 
 
+DATA_SUFFIXES = (".npy", ".parquet", ".safetensors")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _content_hashes(out: Path, files: list[Path]) -> dict:
+    """Digests that let two machines' outputs be compared from their records alone: ``content_sha256`` over the
+    data files (arrays, parquet tables, weights; by relative path, in order), which leaves out what records a
+    run rather than its result (wall times and paths in json, logs, videos); ``model_sha256``, the weights a
+    later stage loads (the output's own ``model.safetensors``, else the last numbered checkpoint's)."""
+    data = sorted((p for p in files if p.suffix in DATA_SUFFIXES and "last" not in p.relative_to(out).parts),
+                  key=lambda p: p.relative_to(out).as_posix())  # fmt: skip
+    if not data:
+        return {}
+    h, sums = hashlib.sha256(), {}
+    for p in data:
+        sums[p] = _sha256(p)
+        h.update(f"{p.relative_to(out).as_posix()}\0{sums[p]}\n".encode())
+    res = {"content_sha256": h.hexdigest()}
+    models = [p for p in data if p.name == "model.safetensors"]
+    top = [p for p in models if p.parent == out]
+    if top or models:
+        res["model_sha256"] = sums[(top or sorted(models, key=lambda p: p.relative_to(out).as_posix()))[-1]]
+    return res
+
+
 def _output_summary(out: Path, log: Path) -> dict:
-    """What a non-metrics stage made: its output's size and, for a training, the last logged loss and step."""
+    """What a non-metrics stage made: its output's size and content digests (:func:`_content_hashes`) and, for a
+    training, the last logged loss and step."""
     files = [p for p in out.rglob("*") if p.is_file()] if out.is_dir() else []
     res: dict = {"output_files": len(files), "output_bytes": sum(p.stat().st_size for p in files)}
+    res.update(_content_hashes(out, files))
     steps = re.findall(r"step:(\S+) .*?loss:([\d.]+)", log.read_text()) if log.is_file() else []
     if steps:
         res["last_logged_step"], res["last_logged_loss"] = steps[-1][0], float(steps[-1][1])
