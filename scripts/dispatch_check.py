@@ -24,10 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from flatlab_lerobot.paper.pipeline import content_hashes
 
-from flatlab_lerobot.paper.pipeline import _content_hashes  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 SETTINGS = {"default": {}, "avx2": {"MKL_CBWR": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"}}
 TRAININGS = {  # name: (recipe, learning set under outputs/paper/cpu)
@@ -45,7 +44,7 @@ def cpu_model() -> str:
 
 def digest(path: Path) -> dict:
     files = [p for p in path.rglob("*") if p.is_file()]
-    return _content_hashes(path, files)
+    return content_hashes(path, files)
 
 
 def main(argv=None) -> int:

@@ -290,14 +290,14 @@ def test_output_digests_follow_the_data_not_the_run(tmp_path):
         (out / "checkpoints" / step / "pretrained_model" / "model.safetensors").write_bytes(w)
     (out / "train_config.json").write_text('{"wall_s": 1.0}')
     files = lambda: [p for p in out.rglob("*") if p.is_file()]  # noqa: E731
-    first = P._content_hashes(out, files())
+    first = P.content_hashes(out, files())
     assert first["model_sha256"] == __import__("hashlib").sha256(b"w4").hexdigest()
     (out / "train_config.json").write_text('{"wall_s": 2.0}')
-    assert P._content_hashes(out, files()) == first
+    assert P.content_hashes(out, files()) == first
     (out / "checkpoints" / "000002" / "pretrained_model" / "model.safetensors").write_bytes(b"other")
-    moved = P._content_hashes(out, files())
+    moved = P.content_hashes(out, files())
     assert moved["content_sha256"] != first["content_sha256"] and moved["model_sha256"] == first["model_sha256"]
-    assert P._content_hashes(tmp_path / "none", []) == {}
+    assert P.content_hashes(tmp_path / "none", []) == {}
 
 
 def test_a_killed_run_ends_at_its_logs_last_write_and_a_resume_adds_it(tmp_path):

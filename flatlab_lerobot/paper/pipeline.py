@@ -499,7 +499,7 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _content_hashes(out: Path, files: list[Path]) -> dict:
+def content_hashes(out: Path, files: list[Path]) -> dict:
     """Digests that let two machines' outputs be compared from their records alone: ``content_sha256`` over the
     data files (arrays, parquet tables, weights; by relative path, in order), which leaves out what records a
     run rather than its result (wall times and paths in json, logs, videos); ``model_sha256``, the weights a
@@ -521,11 +521,11 @@ def _content_hashes(out: Path, files: list[Path]) -> dict:
 
 
 def _output_summary(out: Path, log: Path) -> dict:
-    """What a non-metrics stage made: its output's size and content digests (:func:`_content_hashes`) and, for a
+    """What a non-metrics stage made: its output's size and content digests (:func:`content_hashes`) and, for a
     training, the last logged loss and step."""
     files = [p for p in out.rglob("*") if p.is_file()] if out.is_dir() else []
     res: dict = {"output_files": len(files), "output_bytes": sum(p.stat().st_size for p in files)}
-    res.update(_content_hashes(out, files))
+    res.update(content_hashes(out, files))
     steps = re.findall(r"step:(\S+) .*?loss:([\d.]+)", log.read_text()) if log.is_file() else []
     if steps:
         res["last_logged_step"], res["last_logged_loss"] = steps[-1][0], float(steps[-1][1])
