@@ -22,6 +22,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     object_top,
     observed_motion,
     overhang_mid,
+    press_floor,
     seen_sides,
     shortened,
     slide_cap,
@@ -529,3 +530,25 @@ def test_a_sheet_lift_rises_a_seen_sheets_length_and_leaves_a_rigid_lift_learned
     _, b, _ = observed_motion("A", i, "lift", p0, hand + [0, 0, 0.5], sheet, TABLE, EDGE, True, lambda: hand,
                               from_hand=True, a_sheet_lift=True)  # fmt: skip
     assert b[2] - hand[2] == pytest.approx(0.5)
+
+
+def test_press_floor_bounds_a_deep_press_on_a_thick_object_and_leaves_a_thin_one():
+    """continue_press_floor: the fingertips at most ``depth`` below the seen top under the press (desk 88: an 8-mm
+    coaster pressed through to the table); a press already above the floor, a thin sheet whose floor lies below the
+    table, and an unseen object keep the learned end."""
+    coaster = _box_cloud((0.0, 0.0), (0.10, 0.10, 0.008))
+    top = object_top(coaster, np.r_[-0.02, 0.0])
+    deep = np.r_[-0.02, 0.0, TABLE + FINGER_TIP_BELOW_TCP - 0.001]  # fingertips 1 mm into the table
+    p1, raised = press_floor(deep, coaster, 0.003)
+    assert p1[2] == pytest.approx(top + FINGER_TIP_BELOW_TCP - 0.003) and raised == pytest.approx(p1[2] - deep[2])
+    assert p1[:2].tolist() == deep[:2].tolist()
+    high = np.r_[-0.02, 0.0, top + FINGER_TIP_BELOW_TCP]
+    assert press_floor(high, coaster, 0.003) == (pytest.approx(high), 0.0)
+    sheet = _box_cloud((0.0, 0.0), (0.20, 0.20, 0.002))  # 2 mm: its floor lies 1 mm below the table top
+    at_table = np.r_[-0.02, 0.0, TABLE + FINGER_TIP_BELOW_TCP]  # a press through the sheet to the table stays
+    assert press_floor(at_table, sheet, 0.003) == (pytest.approx(at_table), 0.0)
+    assert press_floor(deep, np.zeros((0, 3)), 0.003) == (pytest.approx(deep), 0.0)
+    with pytest.raises(ValueError, match="continue_press_floor needs A"):
+        FlatLabUnifiedConfig(continue_from_hand="C", continue_press_floor=0.003)
+    with pytest.raises(ValueError, match="continue_press_floor: must be in"):
+        FlatLabUnifiedConfig(continue_from_hand="A", continue_press_floor=0.05)

@@ -188,7 +188,7 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
      {"strategy": "A", "continue_from_hand": "AC", "continue_a_grasp_heights": "true", "continue_a_sheet_lift": "true",
       "a_passes_as_first": "true", "continue_slide_cap": "true", "max_push_passes": "1"},
      {"strategy": "A", "continue_from_hand": "AC", "continue_press_stalled": "0.006", "continue_a_preapproach_line": "true",
-      "max_push_passes": "1"},
+      "max_push_passes": "1", "continue_press_floor": "0.003"},
      {"strategy": "A", "continue_from_hand": "AC", "a_side_arms": "true", "continue_a_preapproach_line": "true"},
      {"strategy": "C", "continue_from_hand": "AC", "continue_c_heights": "all", "continue_c_squeeze_end": "true",
       "continue_c_pinch_centre": "true"},

@@ -243,6 +243,13 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # (stop 65): mousepad_standard and disk_compact_disc at seed 1004 pressed at 0.768-0.770 m, 0.8 cm above the presses
     # that pushed, and three passes left the object where it lay
     continue_press_stalled: float = 0.0
+    # with continue_from_hand (A): a continued press ends with the fingertips at most this far (m) below the seen
+    # object top under them (the object cloud, as contact=observed's rule reads it; the expert presses 1 mm below;
+    # 0: off).  Applied after continue_press_deeper and continue_press_stalled, so it bounds them on thick objects
+    # and leaves thin ones alone (their floor lies below the table).  Traced on Train desk 88 (stop 75): the deepened
+    # press drove the fingertips through an 8-mm cork coaster to the table, the slide stalled, and the release swept
+    # the coaster off the table
+    continue_press_floor: float = 0.0
     # with continue_from_hand (A): a slide continued from the hand advances along +x at most the expert's
     # ``slide_distance`` for the overhang still missing, measured on the object cloud seen as the slide is planned
     # (the rule that already decides another push pass; contact=observed caps its slide the same way): a slide
@@ -394,6 +401,10 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError("--policy.continue_press_stalled needs A in --policy.continue_from_hand (e.g. AC)")
         if not 0.0 <= float(self.continue_press_stalled) <= 0.02:
             raise ValueError(f"--policy.continue_press_stalled: must be in [0, 0.02] m, got {self.continue_press_stalled!r}")
+        if self.continue_press_floor and "A" not in self.continue_from_hand:
+            raise ValueError("--policy.continue_press_floor needs A in --policy.continue_from_hand (e.g. AC)")
+        if not 0.0 <= float(self.continue_press_floor) <= 0.02:
+            raise ValueError(f"--policy.continue_press_floor: must be in [0, 0.02] m, got {self.continue_press_floor!r}")
         if self.continue_slide_cap and "A" not in self.continue_from_hand:
             raise ValueError("--policy.continue_slide_cap=true needs A in --policy.continue_from_hand (e.g. AC)")
         continued = self.continue_level_slide or self.continue_press_deeper or self.continue_level_squeeze

@@ -72,6 +72,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     mirror_pose,
     object_footprint_x,
     observed_motion,
+    press_floor,
     seen_centre,
     sheet_lift_end,
     slide_cap,
@@ -637,6 +638,10 @@ class _Episode:
                     deeper += self.stalled * float(cfg.continue_press_stalled)  # the last pass slid over it
                 (p0, R0), (p1, R1) = continued_motion(p0, R0, p1, R1, *commanded_fk()[a], level=level, deeper=deeper)
                 heights[a] = {"from_hand": True, **({"level": True} if level else {}), **({"deeper": deeper} if deeper else {})}
+                if cfg.continue_press_floor and self.strategy == "A" and spec.primitive == "press":
+                    p1, raised = press_floor(p1, obs.object_points, cfg.continue_press_floor)
+                    if raised:
+                        heights[a]["floor"] = round(raised, 4)  # raised by (m)
                 if cfg.continue_press_repeat and self.strategy == "A" and spec.primitive == "press":
                     self._repeat_press(a, p1, heights[a])
                 if cfg.continue_slide_cap and self.strategy == "A" and spec.primitive == "slide":

@@ -190,6 +190,21 @@ def object_top(points: np.ndarray, xy: np.ndarray | None = None) -> float | None
     return float(np.percentile(points[:, 2], TOP_QUANTILE))
 
 
+def press_floor(p1: np.ndarray, points: np.ndarray, depth: float) -> tuple[np.ndarray, float]:
+    """A's press end ``p1`` (TCP) raised, if need be, so that the fingertips go at most ``depth`` below the seen
+    object top under it (:func:`object_top`; the expert's press goes A_PRESS_DEPTH below it), and by how much (m);
+    unchanged when the object is unseen there."""
+    top = object_top(points, p1[:2])
+    if top is None:
+        return p1, 0.0
+    floor = top + FINGER_TIP_BELOW_TCP - depth
+    if p1[2] >= floor:
+        return p1, 0.0
+    out = np.array(p1, float)
+    out[2] = floor
+    return out, float(floor - p1[2])
+
+
 def _overhang(points: np.ndarray, edge_x: float) -> np.ndarray | None:
     """The seen points past the table edge; None when fewer than MIN_POINTS overhang."""
     over = points[points[:, 0] > edge_x]
