@@ -248,7 +248,7 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # 0: off).  Applied after continue_press_deeper and continue_press_stalled, so it bounds them on thick objects
     # and leaves thin ones alone (their floor lies below the table).  Traced on Train desk 88 (stop 75): the deepened
     # press drove the fingertips through an 8-mm cork coaster to the table, the slide stalled, and the release swept
-    # the coaster off the table
+    # the coaster off the table.  With 0.003 on 60 Train desks: 59 -> 58 (wins desk 88, loses 3 and 82), so off
     continue_press_floor: float = 0.0
     # with continue_from_hand (A): a slide continued from the hand advances along +x at most the expert's
     # ``slide_distance`` for the overhang still missing, measured on the object cloud seen as the slide is planned
