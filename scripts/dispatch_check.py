@@ -17,14 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from flatlab_lerobot.paper.pipeline import content_hashes
+from flatlab_lerobot.paper.pipeline import content_hashes, machine
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -33,13 +32,6 @@ TRAININGS = {  # name: (recipe, learning set under outputs/paper/cpu)
     "generator_A2": ("policies/flatlab_strategy/ablation_A2.json", "strategy_export_orig"),
     "executor_top": ("policies/flatlab_executor/object_top_cosine_rot15.json", "primitive_export_train"),
 }
-
-
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").is_file() else []:
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.processor() or "unknown"
 
 
 def digest(path: Path) -> dict:
@@ -67,7 +59,7 @@ def main(argv=None) -> int:
             sys.exit(f"--compare: {args.compare} has no \"check\" entry")
         if other.get("steps") != args.steps:
             sys.exit(f"--compare: {args.compare} was made with --steps {other.get('steps')}, not {args.steps}")
-    res: dict = {"cpu_model": cpu_model(), "steps": args.steps, "sets": {}, "models": {}, "wall_s": {}}
+    res: dict = {"cpu_model": machine()["cpu_model"], "steps": args.steps, "sets": {}, "models": {}, "wall_s": {}}
     for name, (_, ds) in TRAININGS.items():
         root = args.sets / ds
         if not (root / "meta" / "info.json").is_file():

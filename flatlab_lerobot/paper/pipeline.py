@@ -513,10 +513,9 @@ def content_hashes(out: Path, files: list[Path]) -> dict:
         sums[p] = _sha256(p)
         h.update(f"{p.relative_to(out).as_posix()}\0{sums[p]}\n".encode())
     res = {"content_sha256": h.hexdigest()}
-    models = [p for p in data if p.name == "model.safetensors"]
-    top = [p for p in models if p.parent == out]
-    if top or models:
-        res["model_sha256"] = sums[(top or sorted(models, key=lambda p: p.relative_to(out).as_posix()))[-1]]
+    models = [p for p in data if p.name == "model.safetensors"]  # in path order, as ``data``
+    if models:
+        res["model_sha256"] = sums[next((p for p in models if p.parent == out), models[-1])]
     return res
 
 
