@@ -7,7 +7,9 @@ episodes: column S of ``flatlab eval`` in about a minute per split instead of an
 
 For each object of the splits and each seed it resets the env as ``flatlab eval``'s trial with that seed does (same
 placement draw and point sampling: give the evaluation's cameras, image size and point counts) and calls the policy's own
-``choose_strategy`` on ``observation.object_pointcloud``.  Prints S per split; writes every choice to ``--out``.
+``rank_strategies`` on ``observation.object_pointcloud`` (``--policy-arg`` overrides its config, e.g. ``b_min_width=0.09``).
+Prints S per split; writes every choice, the whole ranking and the seen object's width (the shorter side of the smallest
+rectangle around its cloud seen from above) to ``--out``.
 """
 
 from __future__ import annotations
@@ -17,9 +19,13 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from flatlab_lerobot.catalog import benchmark_objects
 from flatlab_lerobot.env import FlatLabEnv
 from flatlab_lerobot.paper.desk import parse_seeds
+from flatlab_lerobot.policies import seen_points
+from flatlab_lerobot.policies.unified.observed_contact import seen_width
 
 
 def main(argv=None) -> int:
@@ -35,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n-points", type=int, default=4096, help="the env's n_points (its draws come first)")
     ap.add_argument("--n-object-points", type=int, default=4096)
     ap.add_argument("--generator-tta", type=int, default=0, help="the policy's generator_tta (0: its own)")
+    ap.add_argument("--policy-arg", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a flatlab_unified config override, e.g. b_min_width=0.09 (repeatable)")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     try:
@@ -52,13 +60,17 @@ def main(argv=None) -> int:
         raise SystemExit(f"--policy {a.policy}: no config.json (want a flatlab_unified or flatlab_strategy pretrained_model folder)")
     kind = PreTrainedConfig.from_pretrained(a.policy).type
     if kind == "flatlab_unified":
-        cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=[f"--generator_tta={a.generator_tta}"])
+        overrides = [f"--generator_tta={a.generator_tta}", *(f"--{x.removeprefix('--')}" for x in a.policy_arg)]
+        cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=overrides)
         policy = FlatLabUnifiedPolicy.from_pretrained(a.policy, config=cfg).eval()
-        choose = policy.choose_strategy
+        rank = policy.rank_strategies
     elif kind == "flatlab_strategy":
         gen = FlatLabStrategyPolicy.from_pretrained(a.policy).eval()
-        def choose(cloud):  # noqa: E306
-            return gen.rank_cloud(cloud, a.generator_cloud_points, a.generator_tta or None)[0]
+        if a.policy_arg:
+            raise SystemExit("--policy-arg: only for a flatlab_unified --policy")
+
+        def rank(cloud):  # noqa: E306
+            return gen.rank_cloud(cloud, a.generator_cloud_points, a.generator_tta or None)
     else:
         raise SystemExit(f"--policy {a.policy}: config.json type is {kind!r}, want 'flatlab_unified' or 'flatlab_strategy'")
     rows, t0 = [], time.perf_counter()
@@ -78,9 +90,11 @@ def main(argv=None) -> int:
                              image_size=a.image_size, n_points=a.n_points, n_object_points=a.n_object_points, obs_pixels=False)  # fmt: skip
             for seed in seeds:
                 obs, _ = env.reset(seed=seed)
-                chosen = choose(obs["object_pointcloud"])
+                ranked = list(rank(obs["object_pointcloud"]))
+                width = seen_width(seen_points(np.asarray(obs["object_pointcloud"], float)))
                 rows.append({"object_id": spec.id, "split": spec.split, "group": split, "category": spec.category, "label": spec.strategy,
-                             "seed": seed, "strategy": chosen, "S": chosen == spec.strategy})  # fmt: skip
+                             "seed": seed, "strategy": ranked[0], "S": ranked[0] == spec.strategy, "ranked": "".join(ranked),
+                             "seen_width_m": None if width is None else round(width, 4)})  # fmt: skip
             env.close()
         r = [x for x in rows if x["group"] == split]
         print(f"{split}: S {100 * sum(x['S'] for x in r) / len(r):.1f} % ({sum(x['S'] for x in r)}/{len(r)})", flush=True)

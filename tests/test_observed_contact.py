@@ -24,6 +24,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     overhang_mid,
     press_floor,
     seen_sides,
+    seen_width,
     shortened,
     slide_cap,
     squeeze_end,
@@ -552,3 +553,15 @@ def test_press_floor_bounds_a_deep_press_on_a_thick_object_and_leaves_a_thin_one
         FlatLabUnifiedConfig(continue_from_hand="C", continue_press_floor=0.003)
     with pytest.raises(ValueError, match="continue_press_floor: must be in"):
         FlatLabUnifiedConfig(continue_from_hand="A", continue_press_floor=0.05)
+
+
+def test_seen_width_is_the_shorter_side_of_the_outline_seen_from_above_whatever_its_yaw():
+    """b_min_width's measure: a 7.6-cm pad and a 29 x 10.5-cm keyboard, each turned by 25 degrees, read within a few
+    mm of their shorter sides; too few points read as unseen."""
+    yaw = np.radians(25.0)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    for size, width in (((0.076, 0.076, 0.02), 0.076), ((0.29, 0.105, 0.032), 0.105)):
+        pts = _box_cloud((0.0, 0.0), size)
+        pts[:, :2] = pts[:, :2] @ rot.T + [0.05, -0.1]
+        assert seen_width(pts) == pytest.approx(width, abs=0.003)
+    assert seen_width(_box_cloud((0.0, 0.0), (0.1, 0.1, 0.01), n=5)) is None

@@ -802,13 +802,13 @@ def test_generator_reads_each_seen_object_point_once(tiny):
 
 def test_first_observation_script_gives_the_strategy_the_episode_chooses(tiny, tmp_path, monkeypatch):
     """scripts/generator_first_obs.py (column S without running the episodes) resets the env as the trial with
-    that seed does and asks the policy's own choose_strategy: the episode's choice, seed by seed."""
+    that seed does and asks the policy's own rank_strategies: the episode's choice, seed by seed."""
     sys.path.insert(0, str(Path(__file__).parents[1] / "scripts"))
     import generator_first_obs
 
     seen = []
-    orig = FlatLabUnifiedPolicy.choose_strategy
-    monkeypatch.setattr(FlatLabUnifiedPolicy, "choose_strategy", lambda self, c: (seen.append(np.array(c)), orig(self, c))[1])
+    orig = FlatLabUnifiedPolicy.rank_strategies
+    monkeypatch.setattr(FlatLabUnifiedPolicy, "rank_strategies", lambda self, c: (seen.append(np.array(c)), orig(self, c))[1])
     out = tmp_path / "first.json"
     args = ["--policy", str(tiny["artifact"]), "--objects", OBJECT, "--seeds", "0-2", "--image-size", "32",
             "--n-points", str(N), "--n-object-points", str(K), "--out", str(out)]  # fmt: skip
@@ -820,6 +820,13 @@ def test_first_observation_script_gives_the_strategy_the_episode_chooses(tiny, t
         _rollout([pol], steps=1, seed=row["seed"])
         assert row["strategy"] == pol.strategies[0] and np.array_equal(seen[3 + i], seen[i])  # the same cloud
     assert not np.array_equal(seen[0], seen[1])  # another seed, another placement
+    assert all(sorted(r["ranked"]) == ["A", "B", "C"] and r["ranked"][0] == r["strategy"] and r["seen_width_m"] > 0.05
+               for r in choices)  # the whole ranking, and the width b_min_width reads
+    # --policy-arg reaches the policy's config: b_min_width wider than the object puts B last
+    wide = tmp_path / "wide.json"
+    assert generator_first_obs.main([*args[:-1], str(wide), "--policy-arg", "b_min_width=0.3"]) == 0
+    assert all(r["ranked"][-1] == "B" for r in json.loads(wide.read_text())["choices"])
+    seen.clear()
     with pytest.raises(SystemExit, match="--splits"):
         generator_first_obs.main(["--policy", str(tiny["artifact"]), "--splits", "nope"])
     # the generator alone (its flatlab_strategy folder) is read as the artifact reads it: the same clouds, point
@@ -966,6 +973,8 @@ def test_config_rejects_bad_values():
         FlatLabUnifiedConfig(executor_tta=-1)
     with pytest.raises(ValueError, match="--policy.generator_tta"):
         FlatLabUnifiedConfig(generator_tta=65)
+    with pytest.raises(ValueError, match="--policy.b_min_width"):
+        FlatLabUnifiedConfig(b_min_width=-0.01)
     with pytest.raises(ValueError, match="input_key"):
         FlatLabUnifiedConfig(generator=FlatLabStrategyConfig(input_key="observation.scene_pointcloud"))
 
@@ -1597,6 +1606,22 @@ def test_rank_strategies_orders_the_generators_probabilities(tiny, monkeypatch):
     assert sorted(ranked) == ["A", "B", "C"]
     assert [probs["ABC".index(s)] for s in ranked] == sorted(probs, reverse=True)
     assert ranked[0] == pol.generator.predict_strategy(inputs[0])[0] == pol.choose_strategy(cloud)
+
+
+@pytest.mark.parametrize("width", [0.0, 0.09])
+def test_b_min_width_ranks_b_last_for_an_object_seen_narrower(tiny, monkeypatch, width):
+    """b_min_width: a seen object narrower than it gets B last, the others keep their order; a wider one, an
+    unseen one, or the switch off (0) leave the generator's ranking as it is."""
+    pol = _load(tiny["artifact"], b_min_width=width)
+    monkeypatch.setattr(pol.generator, "rank_cloud", lambda cloud, n, tta: ["B", "C", "A"])
+    narrow, wide = np.zeros((600, 3)), np.zeros((600, 3))  # zero rows: not seen
+    rng = np.random.default_rng(0)
+    narrow[:500] = [0.0, 0.0, 0.77] + rng.uniform(-0.038, 0.038, (500, 3)) * [1, 1, 0]  # a 7.6-cm pad
+    wide[:500] = [0.0, 0.0, 0.77] + rng.uniform(-1, 1, (500, 3)) * [0.145, 0.0525, 0]  # a 29 x 10.5-cm keyboard
+    assert pol.rank_strategies(narrow) == (["C", "A", "B"] if width else ["B", "C", "A"])
+    assert pol.rank_strategies(wide) == ["B", "C", "A"]
+    assert pol.rank_strategies(np.zeros((K, 3))) == ["B", "C", "A"]
+    assert pol.choose_strategy(narrow) == ("C" if width else "B")
 
 
 def test_stage_specs_name_the_primitives_the_expert_poses():

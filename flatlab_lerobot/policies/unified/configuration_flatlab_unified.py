@@ -198,6 +198,12 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # 1.6-2.0 cm in 2).  Measured on all splits (one build): Train +2 trials, Test-alpha -1, Test-beta -13 (the
     # unseen scarves are lifted from a fold that has lain flat), so no row uses it (docs/unified.md).  Not in the paper
     retry_on_fold_lost: float = 0.0
+    # B ranked last (tried only after A and C) when the seen object's shorter horizontal side is below this (m; the
+    # smallest rectangle around the object cloud seen from above); 0: off.  B's two hands cannot squeeze a narrow
+    # object: the scripted B, on square and oblong calibration slabs that are not benchmark objects, lifts none
+    # narrower than 8 cm, 1 in 5 at 8.5 cm, 2 in 5 at 9 cm, every one from 9.5 cm (docs/unified.md, stop 76).  No
+    # Train object is that narrow.  Not in the paper
+    b_min_width: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
     # first_sight, the retries keep that ranking.  Column S then reports this strategy.  Empty: off
@@ -436,6 +442,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             if getattr(self, name) and not (self.retry_failed or self.retry_next_strategy):
                 raise ValueError(f"--policy.{name} needs --policy.retry_failed=true or, with clear_all, "
                                  "--policy.retry_next_strategy=true (the retry it ends in)")
+        if not 0.0 <= float(self.b_min_width) <= 0.3:
+            raise ValueError(f"--policy.b_min_width: a width in [0, 0.3] m (0: off), got {self.b_min_width!r}")
         if self.first_attempt not in ("", "A", "B", "C"):
             raise ValueError(f"--policy.first_attempt: one of A, B, C or empty, got {self.first_attempt!r}")
         if self.retry_failed and self.clear_all:

@@ -74,6 +74,7 @@ from flatlab_lerobot.policies.unified.observed_contact import (
     observed_motion,
     press_floor,
     seen_centre,
+    seen_width,
     sheet_lift_end,
     slide_cap,
     squeeze_end,
@@ -858,8 +859,14 @@ class FlatLabUnifiedPolicy(PreTrainedPolicy):
     @torch.no_grad()
     def rank_strategies(self, object_cloud: np.ndarray) -> list[str]:
         """The generator's strategies (A/B/C), most probable first, for one object cloud (K, 3):
-        :meth:`FlatLabStrategyPolicy.rank_cloud` with ``generator_cloud_points`` and ``generator_tta``."""
-        return self.generator.rank_cloud(object_cloud, self.config.generator_cloud_points, self.config.generator_tta or None)
+        :meth:`FlatLabStrategyPolicy.rank_cloud` with ``generator_cloud_points`` and ``generator_tta``; with
+        ``b_min_width``, B last when the seen object is narrower than that."""
+        ranked = self.generator.rank_cloud(object_cloud, self.config.generator_cloud_points, self.config.generator_tta or None)
+        if self.config.b_min_width and "B" in ranked:
+            width = seen_width(seen_points(np.asarray(object_cloud, float)))
+            if width is not None and width < self.config.b_min_width:
+                ranked = [s for s in ranked if s != "B"] + ["B"]
+        return ranked
 
     @staticmethod
     def observed(batch: dict[str, Tensor]) -> list[Observed]:

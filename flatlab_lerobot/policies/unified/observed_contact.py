@@ -512,6 +512,15 @@ def seen_sides(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return sides[0] / np.linalg.norm(sides[0]), sides[1] / np.linalg.norm(sides[1])
 
 
+def seen_width(points: np.ndarray) -> float | None:
+    """The seen object's shorter horizontal side (m): the shorter edge of the smallest rectangle around its points
+    seen from above (``cv2.minAreaRect``); None when it is unseen."""
+    if len(points) < MIN_POINTS:
+        return None
+    (_, _), (w, h), _ = cv2.minAreaRect(np.ascontiguousarray(points[:, :2], dtype=np.float32))
+    return float(min(w, h))
+
+
 def b_align_turn(R: np.ndarray, points: np.ndarray) -> float | None:
     """The turn about the vertical (rad) that lays the finger axis (the hand's y, ``R[:, 1]``) of B's touch
     along the nearest side of the seen outline (:func:`seen_sides`), as the expert's fingers lie along the
