@@ -470,9 +470,14 @@ def desk_table(ctx: Context, st: dict[str, Status]) -> list[str]:
                      f"{_paper_pct(paper.get(paper_key)) if paper_key else '–'} | "
                      f"{'–' if per is None else f'{per:.2f}'} | {state} | "
                      f"{f'`{name}`' if name else '–'} |")  # fmt: skip
-    # desk stages a newer one of the same row superseded (the preset's first wins), or of a row of their own: below,
-    # with their own text
+    # desk stages a newer one of the same row superseded (the preset's first wins), or of a row of their own: in a
+    # table of their own below, with their own text
     earlier = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "desk" and n not in shown]
+    if earlier:
+        lines += ["", "### Earlier desk runs and variants (kept for comparison)", "",
+                  "Rows a newer run above superseded, and variants measured beside them; each says what it ran.", "",
+                  "| method | desks cleared | rate (%) | paper (%) | objects cleared per desk (of 5) | status | stage |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
     for n in earlier:
         s, rep = st.get(n), ctx.stages[n].report
         k_n = desk(s.record) if _has(s) else None
