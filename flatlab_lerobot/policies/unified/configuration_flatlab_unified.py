@@ -202,7 +202,8 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # smallest rectangle around the object cloud seen from above); 0: off.  B's two hands cannot squeeze a narrow
     # object: the scripted B, on square and oblong calibration slabs that are not benchmark objects, lifts none
     # narrower than 8 cm, 1 in 5 at 8.5 cm, 2 in 5 at 9 cm, every one from 9.5 cm (docs/unified.md, stop 76).  No
-    # Train object is that narrow.  Not in the paper
+    # Train object is that narrow, so Train cannot choose it; 0.09 comes from the calibration alone.  On the benchmark
+    # it moves one object's ranking (Test-beta's 7.6-cm pad of sticky notes).  Not in the paper
     b_min_width: float = 0.0
     # diagnostic (stress tests of the retries on Train): the first sight's ranking has this strategy (A, B or C)
     # moved to its top, as if the generator ranked it first, so the first attempt takes it and, with retry_rank=
