@@ -194,7 +194,8 @@ def test_reload_round_trip_gives_identical_weights_and_actions(tiny, tmp_path):
       "continue_c_pinch_centre": "true"},
      {"retry_failed": "true", "retry_switch_after": "2", "continue_from_hand": "AC", "continue_press_stalled": "0.006"},
      {"retry_failed": "true", "retry_switch_after": "2", "retry_on_response": "AC", "first_attempt": "C",
-      "retry_rank": "first_sight"}],
+      "retry_rank": "first_sight"},
+     {"retry_failed": "true", "retry_switch_after": "2", "retry_rank": "first_sight", "b_min_width": "0.3"}],
 )
 def test_actions_never_depend_on_environment_state(tiny, overrides):
     """Three instances see each observation with the privileged state as is, zeroed, and absent (also
