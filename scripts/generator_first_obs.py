@@ -61,7 +61,10 @@ def main(argv=None) -> int:
     kind = PreTrainedConfig.from_pretrained(a.policy).type
     if kind == "flatlab_unified":
         overrides = [f"--generator_tta={a.generator_tta}", *(f"--{x.removeprefix('--')}" for x in a.policy_arg)]
-        cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=overrides)
+        try:
+            cfg = PreTrainedConfig.from_pretrained(a.policy, cli_overrides=overrides)
+        except Exception as e:  # draccus' parse errors and the config's own ValueErrors name the field
+            raise SystemExit(f"--policy-arg {' '.join(a.policy_arg)}: {e}") from None
         policy = FlatLabUnifiedPolicy.from_pretrained(a.policy, config=cfg).eval()
         rank = policy.rank_strategies
     elif kind == "flatlab_strategy":

@@ -827,6 +827,8 @@ def test_first_observation_script_gives_the_strategy_the_episode_chooses(tiny, t
     wide = tmp_path / "wide.json"
     assert generator_first_obs.main([*args[:-1], str(wide), "--policy-arg", "b_min_width=0.3"]) == 0
     assert all(r["ranked"][-1] == "B" for r in json.loads(wide.read_text())["choices"])
+    with pytest.raises(SystemExit, match="--policy-arg b_min_width=-1"):
+        generator_first_obs.main([*args, "--policy-arg", "b_min_width=-1"])
     seen.clear()
     with pytest.raises(SystemExit, match="--splits"):
         generator_first_obs.main(["--policy", str(tiny["artifact"]), "--splits", "nope"])
