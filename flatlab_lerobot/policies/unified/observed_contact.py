@@ -500,12 +500,21 @@ def b_touch_at_face(p0: np.ndarray, p1: np.ndarray, points: np.ndarray) -> tuple
     return p0, p1
 
 
-def seen_sides(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The horizontal directions (unit, (2,)) of the two sides of the seen object's outline: the edges of the
-    smallest rectangle around its points seen from above (``cv2.minAreaRect``); None when it is unseen."""
+def _seen_rect(points: np.ndarray):
+    """The smallest rectangle around the seen object's points seen from above (``cv2.minAreaRect``: centre, size,
+    angle); None when it is unseen."""
     if len(points) < MIN_POINTS:
         return None
-    box = cv2.boxPoints(cv2.minAreaRect(np.ascontiguousarray(points[:, :2], dtype=np.float32))).astype(float)
+    return cv2.minAreaRect(np.ascontiguousarray(points[:, :2], dtype=np.float32))
+
+
+def seen_sides(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The horizontal directions (unit, (2,)) of the two sides of the seen object's outline: the edges of
+    :func:`_seen_rect`; None when it is unseen."""
+    rect = _seen_rect(points)
+    if rect is None:
+        return None
+    box = cv2.boxPoints(rect).astype(float)
     sides = [box[1] - box[0], box[2] - box[1]]
     if min(float(np.linalg.norm(e)) for e in sides) < 1e-6:
         return None
@@ -513,12 +522,9 @@ def seen_sides(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def seen_width(points: np.ndarray) -> float | None:
-    """The seen object's shorter horizontal side (m): the shorter edge of the smallest rectangle around its points
-    seen from above (``cv2.minAreaRect``); None when it is unseen."""
-    if len(points) < MIN_POINTS:
-        return None
-    (_, _), (w, h), _ = cv2.minAreaRect(np.ascontiguousarray(points[:, :2], dtype=np.float32))
-    return float(min(w, h))
+    """The seen object's shorter horizontal side (m): the shorter edge of :func:`_seen_rect`; None when it is unseen."""
+    rect = _seen_rect(points)
+    return None if rect is None else float(min(rect[1]))
 
 
 def b_align_turn(R: np.ndarray, points: np.ndarray) -> float | None:
