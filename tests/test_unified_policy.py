@@ -1165,38 +1165,6 @@ def test_quick_retry_goes_home_at_once_when_the_lift_visibly_failed(tiny, quick)
         FlatLabUnifiedConfig(quick_retry=True)
 
 
-@pytest.mark.parametrize("home_s", [2.0, 1.5])
-def test_home_s_sets_the_length_of_the_move_home(tiny, monkeypatch, home_s):
-    """home_s: the move home after an attempt takes home_s at 10 Hz and ends at the home posture, whether it
-    follows a visibly failed lift (quick_retry: home at once) or a carry-off (carry_and_release is told the same
-    length).  2 s is the expert's own (HOME_STEPS); a bad value names the flag."""
-    from flatlab_lerobot.catalog import get_object
-    from flatlab_lerobot.policies.unified import modeling_flatlab_unified as M
-    from flatlab_lerobot.sim.robot import HOME_Q
-    from flatlab_lerobot.tasks.clear_desk import HOME_STEPS, DeskItem, DeskLayout, make_desk_sim
-
-    sim = make_desk_sim(DeskLayout(0, (DeskItem(get_object("chess_travel"), 0.12, 0.0, 0.1),)))
-    pol = _load(tiny["artifact"], strategy="B", clear_all="true", quick_retry="true", home_s=home_s)
-    ep = _Episode(pol, pol._expert(0, sim.cell.calibration()), "B")
-    n = len(STRATEGIES["B"])
-    ep.act(_desk_observed(sim))
-    ep.actions, ep.index, ep.lift_arms = None, n - 2, ("left", "right")  # the lift has just ended, nothing aloft
-    home = []
-    while len(ep.attempts) < 2:
-        a = ep.act(_desk_observed(sim))
-        if len(ep.attempts) < 2:
-            home.append(np.r_[a[0:7], a[8:15]])
-    assert len(home) == round(home_s / 0.1) == (HOME_STEPS if home_s == 2.0 else 15)
-    np.testing.assert_allclose(home[-1], np.r_[HOME_Q, HOME_Q], atol=1e-9)
-
-    told = []
-    monkeypatch.setattr(M, "carry_and_release", lambda *a: told.append(a[-1]) or iter(()))
-    list(ep._after_hold(_desk_observed(sim, np.array([0.0, 0.0, 0.1])), settle=False))  # aloft: a carry-off
-    assert told == [round(home_s / 0.1)]
-    with pytest.raises(ValueError, match="--policy.home_s"):
-        FlatLabUnifiedConfig(home_s=0.2)
-
-
 @pytest.mark.parametrize("on", [False, True])
 def test_retry_failed_tries_the_next_strategy_after_a_visibly_failed_lift(tiny, monkeypatch, on):
     """retry_failed (one object per episode): nothing lifted as the final hold begins -> home at once and the next

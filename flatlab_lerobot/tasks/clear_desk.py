@@ -397,15 +397,14 @@ def rebase_squeeze(expert, q: np.ndarray, grip: dict[str, float], back: dict[str
 
 
 def carry_and_release(expert, arms: tuple[str, ...], candidates: list[np.ndarray], centre, q: np.ndarray,
-                      grip: dict[str, float], backoff: dict[str, float] | None = None, home_steps: int = HOME_STEPS):
+                      grip: dict[str, float], backoff: dict[str, float] | None = None):
     """Carry the hands of ``arms`` by the first of ``candidates`` (:func:`carry_displacements`) whose
     plan the arms can follow within 5 mm (else the best one), let go, go home.  Yields (stage,
     action (16,)).  ``q`` (14,) / ``grip`` are the last commanded joints / gripper widths;
     ``centre()`` is the object's centre once carried (the hands back away from it), asked when
     the release is planned.  ``backoff`` (both hands hold; :func:`squeeze_backoff`, see CARRY_SQUEEZE): first
     re-base the squeeze on where the hands are (:func:`rebase_squeeze`); None: carry the commanded
-    squeeze as it is.  ``home_steps``: the move home's length (:func:`go_home`).  Plans on ``expert``'s
-    kinematic model only."""
+    squeeze as it is.  Plans on ``expert``'s kinematic model only."""
     from flatlab_lerobot.primitives import ArmMotion, Primitive
 
     if backoff is not None:
@@ -433,15 +432,14 @@ def carry_and_release(expert, arms: tuple[str, ...], candidates: list[np.ndarray
         motions[a] = ArmMotion(poses[a], (poses[a][0] + away, poses[a][1]), (GRIPPER_MAX_WIDTH,) * 2)
     yield from expert.runner.actions(Primitive("move", motions, 1.0), q, grip)
     q, grip = expert.runner.q, expert.runner.grip
-    yield from go_home(q, grip, home_steps)
+    yield from go_home(q, grip)
 
 
-def go_home(q: np.ndarray, grip: dict[str, float], steps: int = HOME_STEPS):
-    """Joint-space move of both arms to the home posture in ``steps`` control steps (HOME_STEPS), grippers
-    opening.  Yields (stage, action)."""
+def go_home(q: np.ndarray, grip: dict[str, float]):
+    """Joint-space move of both arms to the home posture in HOME_STEPS, grippers opening.  Yields (stage, action)."""
     goal = np.r_[HOME_Q, HOME_Q]
     g0 = dict(grip)
-    for s in _smooth(steps):
+    for s in _smooth(HOME_STEPS):
         qk = q + (goal - q) * s
         gk = {a: g0[a] + (GRIPPER_MAX_WIDTH - g0[a]) * s for a in ARMS}
         yield "move", np.r_[qk[:7], gk["left"], qk[7:], gk["right"]]

@@ -133,9 +133,6 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
     # shows now (the next object, or the same one after a failed attempt), while it lies on the table
     clear_all: bool = False
     settle_s: float = 1.0
-    # seconds of the joint-space move of both arms home after an attempt ends (with clear_all or retry_failed:
-    # after the carry-off, or at once when nothing is aloft); the expert's own is 2 s (tasks.clear_desk.HOME_STEPS)
-    home_s: float = 2.0
     # with clear_all or retry_failed: the carry-off takes the held object's centre as the middle of the object
     # cloud's extent (x, y), not the mean of its points.  The seen points crowd where the cameras see the object
     # best: on a Train development desk (desk 6, stop 70) a B-held keyboard_compact's cloud spanned its true extent
@@ -469,8 +466,6 @@ class FlatLabUnifiedConfig(PreTrainedConfig):
             raise ValueError(f"--policy.active_threshold: must be in (0, 1), got {self.active_threshold!r}")
         if not 0.0 <= self.settle_s <= 10.0:
             raise ValueError(f"--policy.settle_s: must be in [0, 10] s, got {self.settle_s!r}")
-        if not 0.5 <= self.home_s <= 5.0:
-            raise ValueError(f"--policy.home_s: must be in [0.5, 5] s, got {self.home_s!r}")
         if not 0.0 < self.control_dt <= 1.0:
             raise ValueError(f"--policy.control_dt: must be in (0, 1] s, got {self.control_dt!r}")
         check_alt_strategies(self.alt_executor_strategies, self.alt_executor is not None)

@@ -448,8 +448,8 @@ class _Episode:
     def _after_hold(self, obs: Observed, settle: bool = True):
         """After the final hold: if the object cloud is aloft, carry it past the usable edge with the
         arms that lifted it and let go (``tasks.clear_desk.carry_and_release``: the expert's carry, planned
-        on the kinematic model from the observed cloud and cell instead of the simulation); else go home
-        (in ``home_s``).  Then (``settle``) hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
+        on the kinematic model from the observed cloud and cell instead of the simulation); else go home.
+        Then (``settle``) hold ``settle_s`` (the object falls off the table).  Yields (stage, action)."""
         pts = obs.object_points
         aloft = self._aloft(obs) and not self.hold_slid  # hold_still: an object still sliding is let go, not carried
         arms = self.lift_arms or ARMS
@@ -463,9 +463,9 @@ class _Episode:
                 measured = np.r_[obs.state[0:7], obs.state[8:15]]  # the arms' joints, as observed
                 back = squeeze_backoff(self.expert, self.q, measured, squeeze)
                 self.log[-1]["squeeze_backoff"] = {a: round(v, 4) for a, v in back.items()}
-            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip, back, self._home_steps())
+            actions = carry_and_release(self.expert, arms, cands, centre, self.q, self.grip, back)
         else:
-            actions = go_home(self.q, self.grip, self._home_steps())
+            actions = go_home(self.q, self.grip)
         last = None
         for step in actions:
             last = step[1]
@@ -473,10 +473,6 @@ class _Episode:
         last = self.last if last is None else last
         for _ in range(round(self.policy.config.settle_s / self.policy.config.control_dt) if settle else 0):
             yield "hold", last
-
-    def _home_steps(self) -> int:
-        """Control steps of the move home (``home_s``)."""
-        return max(1, round(self.policy.config.home_s / self.policy.config.control_dt))
 
     def _next_strategy(self, obs: Observed) -> str:
         """The generator's strategy; with ``retry_next_strategy``, when the object cloud is seen where the last
