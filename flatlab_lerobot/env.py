@@ -56,7 +56,7 @@ from flatlab_lerobot.catalog import REFERENCE_OBJECTS, load_objects
 from flatlab_lerobot.sim.cameras import CameraRig, crop, sample
 from flatlab_lerobot.sim.core import EE_POSE_NAMES, ENV_STATE_DIM, STATE_NAMES, FailureReason, FlatLabSim, SimulationDiverged
 from flatlab_lerobot.sim.domain import Domain, apply_domain
-from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH
+from flatlab_lerobot.sim.robot import ARMS, GRIPPER_MAX_WIDTH, PANDA_MAX_JOINT_SPEED
 from flatlab_lerobot.sim.scene import CALIBRATION_NAMES, CellConfig
 from flatlab_lerobot.tasks import DEFAULT_PLANAR, DEFAULT_YAW_DEG, SCENARIOS, TASKS, ResetDistribution, task_context
 
@@ -94,6 +94,7 @@ class FlatLabEnv(gym.Env):
         scene: str | None = None,
         task: str | None = None,
         desk_split: str | None = None,
+        joint_speed_limit: bool = False,
     ):
         super().__init__()
         if object_id is None:
@@ -127,6 +128,7 @@ class FlatLabEnv(gym.Env):
         self.rig: CameraRig | None = None
         self._task_override = task
         self.desk_split = desk_split or None  # a scenario's objects: this catalog split (None: the scenario's own)
+        self.joint_speed_limit = bool(joint_speed_limit)  # arm joint targets move at most the Panda's rated speeds
         self._build(object_id)
         self._make_spaces()
         self.steps = 0  # control steps since the last reset
@@ -154,6 +156,8 @@ class FlatLabEnv(gym.Env):
             self.sim = make_desk_sim(self.layout, self._cell, self.control_dt)
         else:
             self.sim = FlatLabSim(self.obj, self._cell, control_dt=self.control_dt)
+        if self.joint_speed_limit:
+            self.sim.max_joint_speed = np.tile(PANDA_MAX_JOINT_SPEED, 2)
         self.cell = self.sim.cell
         needed = set(self.cameras) | set(self.pointcloud_cameras) | {self.render_camera}
         self.rig = CameraRig(self.sim.model, self.image_size, self.image_size, sorted(needed))

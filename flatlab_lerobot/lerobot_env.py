@@ -88,6 +88,10 @@ class FlatLabEnvConfig(EnvConfig):
     # clear_desk: the catalog split of the desk's five objects: test_beta (the benchmark's desk) or train (a
     # development desk, to choose a policy's switches on without looking at test objects), or test_alpha.
     desk_split: str = "test_beta"
+    # Rate-limit the arms' joint targets to the Panda's rated joint speeds (2.175 rad/s joints 1-4, 2.61 joints 5-7):
+    # a commanded step beyond them is reached over several steps.  Off: targets are taken as commanded (the benchmark's
+    # measurements so far).
+    joint_speed_limit: bool = False
     # Render the camera images (false: no observation.images.*; faster for policies that do not look).
     obs_pixels: bool = True
     # Compute the point clouds (false: no observation.pointcloud / observation.object_pointcloud).
@@ -209,6 +213,7 @@ class FlatLabEnvConfig(EnvConfig):
             "xy_range": self.xy_range,
             "yaw_range_deg": self.yaw_range_deg,
             "desk_split": self.desk_split,
+            "joint_speed_limit": self.joint_speed_limit,
             "episode_length": self.episode_length,
             "control_dt": 1.0 / self.fps,
             "obs_pixels": self.obs_pixels,

@@ -155,3 +155,33 @@ def test_every_task_runs_in_the_env(task_id):
     obs, r, term, trunc, info = env.step(obs["agent_pos"])
     assert "is_success" in info and not info["is_success"]
     env.close()
+
+
+@pytest.mark.parametrize("limit", [False, True])
+def test_joint_speed_limit_reaches_a_far_target_over_several_steps(limit):
+    """joint_speed_limit: a joint target commanded 1 rad away is approached at the Panda's rated speed (2.175 rad/s
+    for joint 1: 0.2175 rad per 0.1-s step) and reached on the fifth step; the grippers are not limited.  Off: the
+    target is taken at once (the benchmark's measurements so far)."""
+    from flatlab_lerobot.sim.robot import PANDA_MAX_JOINT_SPEED
+
+    e = FlatLabEnv(object_id="ref_box", obs_pixels=False, obs_pointcloud=False, episode_length=10, joint_speed_limit=limit)
+    try:
+        obs, _ = e.reset(seed=0)
+        a = obs["agent_pos"].copy()
+        q0 = e.sim._target.copy()
+        a[0] = q0[0] + 1.0  # left joint 1, 1 rad away
+        a[7] = 0.0  # left gripper closed at once
+        targets = []
+        for _ in range(5):
+            e.step(a)
+            targets.append(e.sim._target.copy())
+        step = 2.175 * 0.1
+        if limit:
+            np.testing.assert_allclose([t[0] - q0[0] for t in targets], [step, 2 * step, 3 * step, 4 * step, 1.0])
+            assert e.sim.max_joint_speed[0] == PANDA_MAX_JOINT_SPEED[0] and e.sim.max_joint_speed.shape == (14,)
+        else:
+            np.testing.assert_allclose([t[0] - q0[0] for t in targets], [1.0] * 5)
+            assert e.sim.max_joint_speed is None
+        assert targets[0][7] == 0.0  # the gripper's target at once either way
+    finally:
+        e.close()

@@ -265,12 +265,12 @@ def _g_cells(s: Status | None, paper_row=None, with_paper: bool = True) -> list[
 
 
 def earlier_runs(ctx: Context, st: dict[str, Status], used: list[str]) -> list[str]:
-    """Runs a newer stage superseded (table "earlier" in the preset), in the preset's order, each with its
-    own text; appends their stage names to ``used`` (their commands are listed with Table 1's)."""
+    """Runs a newer stage superseded, and variants of a row (table "earlier" in the preset), in the preset's order,
+    each with its own text; appends their stage names to ``used`` (their commands are listed with Table 1's)."""
     names = [n for n, stage in ctx.stages.items() if stage.report.get("table") == "earlier"]
     if not names:
         return []
-    lines = ["### Earlier runs, superseded by a row above (kept for comparison)", "",
+    lines = ["### Earlier runs and variants of a row above (kept for comparison)", "",
              "| run | Train | Test-α | Test-β | status | stage |", "|---|---|---|---|---|---|"]  # fmt: skip
     for n in names:
         rep = ctx.stages[n].report

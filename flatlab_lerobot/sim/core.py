@@ -128,6 +128,9 @@ class FlatLabSim:
         m = self.model
         self.control_dt = control_dt
         self.n_substeps = max(1, int(round(control_dt / m.opt.timestep)))
+        # (14,) rad/s per arm joint (left then right), or None: each control step's arm joint targets move at most
+        # this far from the last step's (joint_speed_limit; the model itself has no speed limit)
+        self.max_joint_speed: np.ndarray | None = None
         self.arms = {arm: ArmIndex.build(m, arm) for arm in ARMS}
         self.table_geom = m.geom("table_top").id
         self.objects = [self._index_object(obj, OBJECT_BODY, "object_free")] + [
@@ -249,6 +252,10 @@ class FlatLabSim:
         lo, hi = m.actuator_ctrlrange[ids, 0], m.actuator_ctrlrange[ids, 1]
         target = np.clip(target, lo, hi)
         start = self._target
+        if self.max_joint_speed is not None:  # the arms' joint targets rate-limited, the grippers not
+            arm = np.r_[0:7, 8:15]
+            reach = self.max_joint_speed * self.control_dt
+            target[arm] = start[arm] + np.clip(target[arm] - start[arm], -reach, reach)
         for k in range(1, self.n_substeps + 1):
             d.ctrl[ids] = start + (target - start) * (k / self.n_substeps)
             mujoco.mj_step(m, d)

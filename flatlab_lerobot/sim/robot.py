@@ -25,7 +25,8 @@ GRIPPER_MAX_WIDTH = 0.08  # metres between the finger pads, fully open
 # A comfortable "ready" pose: elbow up, hand pointing down.
 HOME_Q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785398])
 # Rated joint speeds, rad/s (Franka Control Interface, "Robot and interface specifications": joints 1-4 2.175, 5-7
-# 2.61).  The model does not enforce them; scripts/joint_speeds.py measures motions against them.
+# 2.61).  The model does not enforce them: --env.joint_speed_limit rate-limits the joint targets to them, and
+# scripts/joint_speeds.py measures motions against them.
 PANDA_MAX_JOINT_SPEED = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 
 ARM_BITS = {"left": BIT_LEFT, "right": BIT_RIGHT}
