@@ -53,6 +53,13 @@ def test_resume_after_interruption(tmp_path):
     # resuming with other settings would mix incomparable trials: refused, naming run.json
     with pytest.raises(SystemExit, match="run.json.*seed"):
         main([*ARGS, "--out", str(out), "--seed", "3"])
+    # a run.json from before an env field existed: resumed as it is when the field keeps its default, refused when not
+    run = json.loads((out / "run.json").read_text())
+    del run["env"]["joint_speed_limit"]
+    (out / "run.json").write_text(json.dumps(run))
+    assert main([*ARGS, "--out", str(out), "--workers", "2"]) == 0 and _keys(jsonl) == keys
+    with pytest.raises(SystemExit, match="run.json.*env"):
+        main([*ARGS, "--out", str(out), "--env.joint_speed_limit=true"])
 
 
 def test_baselines_choose_fixed_strategies(tmp_path):

@@ -386,6 +386,13 @@ def load_done(path: Path, policy: str) -> dict[tuple[str, int], dict]:
     return done
 
 
+def _env_field_defaults() -> dict:
+    """The ``flatlab`` EnvConfig's fields with their defaults, as ``gym_kwargs`` names them."""
+    from flatlab_lerobot.lerobot_env import FlatLabEnvConfig
+
+    return {f.name: f.default for f in dataclasses.fields(FlatLabEnvConfig) if f.default is not dataclasses.MISSING}
+
+
 def check_run(out: Path, run: dict) -> None:
     """``run.json`` pins what the trials in ``results.jsonl`` mean (policy, seed, env, overrides);
     resuming with other settings would mix incomparable trials."""
@@ -396,8 +403,10 @@ def check_run(out: Path, run: dict) -> None:
         except json.JSONDecodeError as e:
             raise EvalError(f"{path}: not valid JSON ({e}); delete it only if results.jsonl is empty") from e
         run = json.loads(json.dumps(run))  # tuples -> lists, as stored
-        # env fields added to the EnvConfig since (with their defaults) do not count as a change
-        run["env"] = {k: v for k, v in run["env"].items() if k in old.get("env", {})}
+        # an env field added to the EnvConfig since does not count as a change while it keeps its default (the run's
+        # trials ran as if it were there); set to anything else it does (--env.joint_speed_limit=true on a run of before)
+        new_default = _env_field_defaults()
+        run["env"] = {k: v for k, v in run["env"].items() if k in old.get("env", {}) or new_default.get(k, v) != v}
         diff = sorted(k for k in run if old.get(k) != run[k])
         if diff:
             raise EvalError(f"{path}: this folder was run with other settings ({', '.join(diff)}: "
