@@ -29,13 +29,6 @@ from flatlab_lerobot.sim.robot import ARM_JOINTS, ARMS, PANDA_MAX_JOINT_SPEED
 RATED = np.tile(PANDA_MAX_JOINT_SPEED, 2)  # (14,): left then right, as the joint action orders them
 
 
-def _arm_dofs(sim) -> list[int]:
-    import mujoco
-
-    m = sim.model
-    return [int(m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"{a}/{j}")]) for a in ARMS for j in ARM_JOINTS]
-
-
 def record_trial(ev, object_id: str, trial: int) -> tuple[dict, list[tuple[str, np.ndarray, np.ndarray]]]:
     """One trial: its record and, per control step, (stage, commanded joint speeds (14,), measured ones (14,))."""
     step = FlatLabEnv.step
@@ -51,7 +44,8 @@ def record_trial(ev, object_id: str, trial: int) -> tuple[dict, list[tuple[str, 
         cmd = np.abs(q - last["q"]) / env.sim.control_dt if "q" in last else np.zeros(14)
         last["q"] = q
         stage = str((getattr(ev.policy, "stages", None) or [""])[0]) or "?"
-        rows.append((stage, cmd, np.abs(env.sim.data.qvel[_arm_dofs(env.sim)])))
+        dofs = np.concatenate([env.sim.arms[arm].dof for arm in ARMS])  # the sim's own address book, left then right
+        rows.append((stage, cmd, np.abs(env.sim.data.qvel[dofs])))
         return out
 
     FlatLabEnv.step = traced
