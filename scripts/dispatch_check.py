@@ -8,8 +8,10 @@ For each math-library setting in ``SETTINGS`` it trains the A-2 generator and th
 ``--steps`` steps (their `cpu` recipes, seed 1000, ``OMP_NUM_THREADS=1``) and prints each model's sha256, with the
 learning sets' content digests.  ``--compare`` reads a record written by another machine (its ``"check"`` entry,
 e.g. ``docs/results/cpu_dispatch_xeon.json``) and says which digests are equal.  Equal learning sets and unequal
-``default`` models: the CPUs differ only in the math libraries' dispatch; equal ``avx2`` models: a build with
-both libraries held at AVX2 is portable between the two CPUs (``docs/results.md``, Reproducibility).
+``default`` models: the CPUs differ only in the math libraries' dispatch; equal ``avx2`` (or ``generic``) models:
+a build with the libraries held at that setting is portable between the two CPUs (``docs/results.md``,
+Reproducibility).  ``--settings generic`` runs one setting only; a digest the other record lacks is said so.
+Records: ``docs/results/cpu_dispatch_xeon.json`` (Intel Xeon, stop 75), ``cpu_dispatch_amd.json`` (AMD EPYC, stop 78).
 """
 
 from __future__ import annotations
@@ -27,7 +29,14 @@ from flatlab_lerobot.paper.pipeline import content_hashes, machine
 
 REPO = Path(__file__).resolve().parents[1]
 
-SETTINGS = {"default": {}, "avx2": {"MKL_CBWR": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"}}
+SETTINGS = {
+    "default": {},
+    "avx2": {"MKL_CBWR": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
+    # every library on its generic code path: oneMKL's conditional-numerical-reproducibility branch meant to give
+    # the same results on any x86 CPU, oneDNN held at SSE4.1, ATen's kernels unvectorized (stop 78: avx2 was not
+    # portable between the AMD EPYC and the Intel Xeon)
+    "generic": {"MKL_CBWR": "COMPATIBLE", "ONEDNN_MAX_CPU_ISA": "SSE41", "ATEN_CPU_CAPABILITY": "default"},
+}
 TRAININGS = {  # name: (recipe, learning set under outputs/paper/cpu)
     "generator_A2": ("policies/flatlab_strategy/ablation_A2.json", "strategy_export_orig"),
     "executor_top": ("policies/flatlab_executor/object_top_cosine_rot15.json", "primitive_export_train"),
@@ -46,9 +55,13 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--compare", type=Path, help="a record with another machine's \"check\" entry")
     ap.add_argument("--json", type=Path, help="write this machine's check here")
+    ap.add_argument("--settings", default=",".join(SETTINGS), help=f"comma-separated, of {', '.join(SETTINGS)}")
     args = ap.parse_args(argv)
     if args.steps < 1:
         ap.error("--steps must be >= 1")
+    settings = [x.strip() for x in args.settings.split(",") if x.strip()]
+    if not settings or (bad := [x for x in settings if x not in SETTINGS]):
+        ap.error(f"--settings: unknown {bad if settings else 'empty list'}; choose from {', '.join(SETTINGS)}")
     other = None
     if args.compare:  # checked before minutes of training
         try:
@@ -66,7 +79,8 @@ def main(argv=None) -> int:
             sys.exit(f"--sets: {root} is not a learning set (no meta/info.json); build it with "
                      f"`flatlab paper --preset cpu --only {ds}`")  # fmt: skip
         res["sets"][ds] = digest(root)["content_sha256"]
-    for setting, extra in SETTINGS.items():
+    for setting in settings:
+        extra = SETTINGS[setting]
         env = {**os.environ, "OMP_NUM_THREADS": "1", **extra}
         for k in ("MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "ATEN_CPU_CAPABILITY"):
             if k not in extra:
@@ -94,7 +108,8 @@ def main(argv=None) -> int:
         print(f"against {other['cpu_model']} ({args.compare}):")
         for kind in ("sets", "models"):
             for k, h in res[kind].items():
-                print(f"  {k:24s} {'equal' if other[kind].get(k) == h else 'DIFFERENT'}")
+                verdict = "not in that record" if k not in other[kind] else "equal" if other[kind][k] == h else "DIFFERENT"
+                print(f"  {k:24s} {verdict}")
     return 0
 
 

@@ -23,11 +23,21 @@ def test_a_compare_record_is_checked_before_training(script, tmp_path):
         mod.main(["--sets", str(tmp_path), "--compare", str(rec)])
 
 
-def test_the_committed_check_has_every_digest(script):
+def test_an_unknown_setting_is_named_before_training(script, tmp_path, capsys):
+    mod = script("dispatch_check")
+    with pytest.raises(SystemExit):
+        mod.main(["--sets", str(tmp_path), "--settings", "default,avx3"])
+    assert "--settings: unknown ['avx3']" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("record", ["cpu_dispatch_xeon.json", "cpu_dispatch_amd.json"])
+def test_the_committed_checks_have_every_digest(script, record):
     mod = script("dispatch_check")
     from pathlib import Path
 
-    check = json.loads((Path(__file__).resolve().parents[1] / "docs/results/cpu_dispatch_xeon.json").read_text())["check"]
+    check = json.loads((Path(__file__).resolve().parents[1] / "docs/results" / record).read_text())["check"]
     assert set(check["sets"]) == {ds for _, ds in mod.TRAININGS.values()}
-    assert set(check["models"]) == {f"{n}_{s}" for n in mod.TRAININGS for s in mod.SETTINGS}
+    ran = {k.rsplit("_", 1)[1] for k in check["models"]}
+    assert {"default", "avx2"} <= ran <= set(mod.SETTINGS)
+    assert set(check["models"]) == {f"{n}_{s}" for n in mod.TRAININGS for s in ran}
     assert all(len(h) == 64 for h in [*check["sets"].values(), *check["models"].values()])
