@@ -8,8 +8,10 @@ Runs each desk exactly as ``flatlab eval --seed 0`` runs trial ``d`` (the desk o
 lerobot's ``eval_policy``) and writes one JSON line per desk: the objects, which were cleared, the attempts' strategies,
 per object the step it left the table, whether it had been lifted (the hold rule met) then, the longest hold timer it
 reached and the policy's stage then, and the policy's carry / go-home decisions (``flatlab_unified``).  An object off
-the table but never lifted is lost for good: the desk can no longer be cleared.  The script reads the simulator's
-state for the person looking; the policy never sees it.
+the table but never lifted is lost for good: the desk can no longer be cleared.  With ``--hold-trace`` the line also
+holds every step at which a hand touches an object: the hold rule's view of it (clearance above the table, table
+contact, the touching arms, slip in the hands, the hold timer) and the policy's stage, so one sees why a timer
+restarted.  The script reads the simulator's state for the person looking; the policy never sees it.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ def main(argv=None) -> int:
     ap.add_argument("--policy", required=True, help="pretrained_model folder or a built-in policy name (oracle, ...)")
     ap.add_argument("--desks", required=True, help="comma-separated desk layout seeds (flatlab eval --seed 0 trials)")
     ap.add_argument("--out", required=True, help="JSON lines file to append one line per desk to")
+    ap.add_argument("--hold-trace", action="store_true",
+                    help="also write, per step, the hold rule's status of every object a hand touches")
     args, extra = ap.parse_known_args(argv)
     try:
         desks = [int(d) for d in args.desks.split(",")]
@@ -50,6 +54,15 @@ def main(argv=None) -> int:
             seen.clear()
             seen.update(sim=sim, max_held=np.zeros(len(sim.objects)), off={})
         seen["max_held"] = np.maximum(seen["max_held"], sim._time_held)
+        if args.hold_trace:
+            stage = str((getattr(ev.policy, "stages", None) or [""])[0])
+            for i in range(len(sim.objects)):
+                if sim.holding_arms(i):
+                    st = sim.grasp_status(i)
+                    seen.setdefault("trace", []).append(
+                        {"step": env.steps, "object": sim.objects[i].obj.id, "clearance": round(st.clearance, 4),
+                         "table_contact": st.table_contact, "arms": list(st.holding_arms), "slip": round(st.slip, 4),
+                         "held_s": round(st.held_for, 2), "stage": stage})  # fmt: skip
         for i in range(len(sim.objects)):
             if i not in seen["off"] and sim.off_table(i):
                 stage = (getattr(ev.policy, "stages", None) or [""])[0]
@@ -69,6 +82,8 @@ def main(argv=None) -> int:
                        "longest_hold_s": dict(zip(ids, np.round(seen["max_held"], 2).tolist())),
                        "after": [{k: d[k] for k in ("after", "arms", "hold_still") if k in d}
                                  for d in decisions if "after" in d or "hold_still" in d]}
+                if args.hold_trace:
+                    row["hold_trace"] = seen.get("trace", [])
                 lost = [o for o, v in row["off_table"].items() if not v["lifted"]]
                 print(f"desk {row['desk']}: cleared {sum(row['cleared'])}/5, attempts {row['attempts']}, "
                       f"off the table uncounted: {lost or 'none'}", flush=True)
