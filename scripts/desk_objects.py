@@ -54,8 +54,8 @@ def main(argv=None) -> int:
             seen.clear()
             seen.update(sim=sim, max_held=np.zeros(len(sim.objects)), off={})
         seen["max_held"] = np.maximum(seen["max_held"], sim._time_held)
+        stage = str((getattr(ev.policy, "stages", None) or [""])[0])  # the policy's stage at this step
         if args.hold_trace:
-            stage = str((getattr(ev.policy, "stages", None) or [""])[0])
             for i in range(len(sim.objects)):
                 if sim.holding_arms(i):
                     st = sim.grasp_status(i)
@@ -65,9 +65,8 @@ def main(argv=None) -> int:
                          "held_s": round(st.held_for, 2), "stage": stage})  # fmt: skip
         for i in range(len(sim.objects)):
             if i not in seen["off"] and sim.off_table(i):
-                stage = (getattr(ev.policy, "stages", None) or [""])[0]
                 seen["off"][i] = {"step": env.steps, "lifted": bool(sim.lifted[i]),
-                                  "longest_hold_s": round(float(seen["max_held"][i]), 2), "stage": str(stage)}
+                                  "longest_hold_s": round(float(seen["max_held"][i]), 2), "stage": stage}
         return out
 
     FlatLabEnv.step = traced
