@@ -253,10 +253,14 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     before = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
     trained = st["strategy_train_cpu"].record["metrics"]
     assert len(trained["model_sha256"]) == 64 and len(trained["content_sha256"]) == 64
-    assert paper_main([*args, "--force", "strategy_train_cpu", "strategy_cpu", "--no-render"]) == 0
+    assert paper_main([*args, "--only", "strategy_cpu", "--force", "strategy_train_cpu", "--no-render"]) == 0
     after = json.loads((res / "tiny" / "strategy_cpu.json").read_text())
-    retrained = P.statuses(P.context("tiny", out, res))["strategy_train_cpu"].record["metrics"]
+    st_after = P.statuses(P.context("tiny", out, res))
+    retrained = st_after["strategy_train_cpu"].record["metrics"]
     assert retrained["model_sha256"] == trained["model_sha256"]  # bit-identical weights, and the record says so
+    # the metrics stage reran with the forced training; the other users of its weights stay done (same digest)
+    assert after["paper_stage"]["input_digests"]["strategy_train_cpu"] == retrained["content_sha256"]
+    assert {n for n, s in st_after.items() if s.state != "done"} == set()
     assert after["paper_stage"]["created"] >= before["paper_stage"]["created"]
     for key in ("per_split", "per_category", "per_object", "selection"):
         assert after[key] == before[key], key
@@ -280,6 +284,38 @@ def test_tiny_pipeline_end_to_end_and_reproducible(tmp_path, capsys):
     ctx = P.context("tiny", out, res)
     row = next(line for line in R.runs_table(ctx, P.statuses(ctx)).splitlines() if line.startswith("| `eval_oracle` |"))
     assert "(2 runs)" in row
+
+
+def test_a_record_is_stale_once_its_input_is_rebuilt_and_a_forced_stage_reruns_its_users(tmp_path):
+    """A record keeps its inputs' data digests: when an input's record later carries another digest (a rebuilt
+    training), the record is stale though its config is the same; forcing a stage reruns the selected stages
+    downstream of it, whose records describe the output it replaces."""
+    ctx = ctx_for("tiny", tmp_path, tmp_path / "res")
+    fps = P.fingerprints(ctx)
+    train, metrics = "strategy_train_cpu", "strategy_cpu"
+    assert train in ctx.stages[metrics].inputs
+    upstream, todo = set(), [metrics]
+    while todo:  # every stage the metrics stage needs, done, with its output in place
+        upstream.update(ins := ctx.stages[todo.pop()].inputs)
+        todo += ins
+    for name in upstream:
+        P.write_json(ctx.record_path(name), {"metrics": {"content_sha256": f"{name}-1"},
+                                             "paper_stage": {"fingerprint": fps[name]}})  # fmt: skip
+    digests = {i: f"{i}-1" for i in ctx.stages[metrics].inputs}
+    P.write_json(ctx.record_path(metrics), {"paper_stage": {"fingerprint": fps[metrics], "input_digests": digests}})
+    for name in (metrics, *upstream):
+        ctx.out(name).mkdir(parents=True)
+    assert P.statuses(ctx)[metrics].state == "done"
+    assert P.plan(ctx, [metrics], set(), P.statuses(ctx)) == []
+    assert P.plan(ctx, [metrics], {train}, P.statuses(ctx)) == [train, metrics]  # downstream of the forced one
+    P.write_json(ctx.record_path(train), {"metrics": {"content_sha256": "rebuilt"}, "paper_stage": {"fingerprint": fps[train]}})
+    st = P.statuses(ctx)
+    assert st[metrics].state == "stale" and st[metrics].reason == f"input {train} rebuilt since its record"
+    assert P.plan(ctx, [metrics], set(), st) == [metrics]
+    assert "stale record (input strategy_train_cpu rebuilt since its record)" == R._state(st[metrics])
+    # a record from before the digests (no input_digests) cannot tell, and stays done
+    P.write_json(ctx.record_path(metrics), {"paper_stage": {"fingerprint": fps[metrics]}})
+    assert P.statuses(ctx)[metrics].state == "done"
 
 
 def test_output_digests_follow_the_data_not_the_run(tmp_path):

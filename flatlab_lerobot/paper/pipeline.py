@@ -295,7 +295,11 @@ def statuses(ctx: Context, fps: dict[str, str] | None = None) -> dict[str, Statu
             why = next((f"{i}: {out[i].reason}" for i in st.inputs if out[i].state == "blocked"), None)
         meta = (rec or {}).get("paper_stage")
         if meta and meta.get("fingerprint") == fps[name]:
-            out[name] = Status("done", record=rec, record_path=path)
+            # the config is the same; an input rebuilt since (another digest of its data) makes the record stale
+            moved = next((i for i, d in meta.get("input_digests", {}).items()
+                          if i in out and record_digest(out[i].record) not in (None, d)), None)  # fmt: skip
+            out[name] = (Status("stale", f"input {moved} rebuilt since its record", rec, path) if moved
+                         else Status("done", record=rec, record_path=path))  # fmt: skip
         elif rec is not None and not meta:
             out[name] = Status("earlier", "measured before `flatlab paper` (no fingerprint)", rec, path)
         elif legacy := next((ctx.results_dir / x for x in st.legacy if (ctx.results_dir / x).is_file()), None):
@@ -311,14 +315,21 @@ def statuses(ctx: Context, fps: dict[str, str] | None = None) -> dict[str, Statu
 
 def plan(ctx: Context, targets: list[str], force: set[str], st: dict[str, Status]) -> list[str]:
     """Stages to run for ``targets``, inputs first: a target not done, and every input of a stage to
-    run whose record is not done or whose output folder is gone."""
+    run whose record is not done or whose output folder is gone.  A stage downstream of a forced one
+    is not done either: its record describes the output the forced stage is about to replace."""
     todo: list[str] = []
+    above: dict[str, bool] = {}
+
+    def forced_above(name: str) -> bool:
+        if name not in above:
+            above[name] = any(i in force or forced_above(i) for i in ctx.stages[name].inputs)
+        return above[name]
 
     def need(name: str, as_input: bool) -> None:
         if name in todo:
             return
         s = st[name]
-        done = s.state in ("done", "earlier") and name not in force
+        done = s.state in ("done", "earlier") and name not in force and not forced_above(name)
         if done and (not as_input or ctx.stages[name].is_result or ctx.out(name).exists()):
             return
         for i in ctx.stages[name].inputs:
@@ -519,6 +530,12 @@ def content_hashes(out: Path, files: list[Path]) -> dict:
     return res
 
 
+def record_digest(rec: dict | None) -> str | None:
+    """The digest of what a stage made, from its record (``content_sha256``; None for a record without one:
+    a result, or a record written before the digests existed)."""
+    return ((rec or {}).get("metrics") or {}).get("content_sha256")
+
+
 def _output_summary(out: Path, log: Path) -> dict:
     """What a non-metrics stage made: its output's size and content digests (:func:`content_hashes`) and, for a
     training, the last logged loss and step."""
@@ -592,7 +609,9 @@ def run_stage(ctx: Context, st: Stage, fp: str, fps: dict[str, str], restart: bo
     rec["paper_stage"] = {
         "stage": st.name, "kind": st.kind, "preset": ctx.preset["name"], "what": st.what,
         "command": display(ctx, st), "command_run": shlex.join(cmd), "fingerprint": fp,
-        "inputs": {i: fps[i] for i in st.inputs}, "seeds": _seeds(st.cmd), "env": ctx.preset["env"],
+        "inputs": {i: fps[i] for i in st.inputs},
+        "input_digests": {i: d for i in st.inputs if (d := record_digest(_read(ctx.record_path(i))))},
+        "seeds": _seeds(st.cmd), "env": ctx.preset["env"],
         "git": git_commit(), "wall_s": round(wall + sum(earlier), 1), "machine": machine(), "device": device(),
         "created": created, "output": f"$OUT/{st.name}",
     }  # fmt: skip

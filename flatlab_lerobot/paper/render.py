@@ -195,7 +195,7 @@ def _state(s: Status | None) -> str:
         return "not in this preset"
     if s.state == "missing":
         return "not run yet"
-    return {"done": "measured", "earlier": "measured (earlier run)", "stale": "stale record (config changed)"}.get(s.state, s.reason)
+    return {"done": "measured", "earlier": "measured (earlier run)", "stale": f"stale record ({s.reason})"}.get(s.state, s.reason)
 
 
 def _pct(k: int, n: int) -> str:
