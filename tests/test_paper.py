@@ -192,6 +192,20 @@ def test_sweep_plot_is_drawn_from_records(tmp_path):
     assert "stale record" in text  # its fingerprint is not this registry's
 
 
+def test_headline_scores_the_models_the_flatlab_row_runs():
+    """The headline's generator accuracy is the one the FlatLab row's policy holds (found up its inputs), not
+    another recipe's; a scripted policy holds none."""
+    ctx = ctx_for("cpu")
+    row = R._rows(ctx, P.statuses(ctx), "grasp")["FlatLab"]
+    build = next(i for i in ctx.stages[row].inputs if i.startswith("unified_"))
+    train = next(i for i in ctx.stages[build].inputs if i.startswith("strategy_train_"))
+    assert R._scored_input(ctx, row, "strategy") == "strategy_" + train.removeprefix("strategy_train_")
+    executor = next(i for i in ctx.stages[build].inputs if i.startswith("executor_train_"))  # the main one, first
+    assert R._scored_input(ctx, row, "executor") == "executor_" + executor.removeprefix("executor_train_")
+    assert R._scored_input(ctx, "eval_oracle_flush_pads", "strategy") is None and R._scored_input(ctx, None, "strategy") is None
+    assert f"the {ctx.stages[R._scored_input(ctx, row, 'strategy')].report['row']} recipe FlatLab ships" in R.headline(ctx)
+
+
 def test_readme_headline_is_the_rendered_one():
     text = (REPO / "README.md").read_text()
     m = re.search(r"<!-- results:headline -->\n(.*?)<!-- /results:headline -->", text, re.S)

@@ -543,6 +543,22 @@ def runs_table(ctx: Context, st: dict[str, Status]) -> str:
     return "\n".join(lines)
 
 
+def _scored_input(ctx: Context, stage: str | None, kind: str) -> str | None:
+    """The metrics stage that scores the ``kind`` (``strategy`` or ``executor``) model ``stage``'s policy holds: the
+    first ``<kind>_train_<id>`` up its inputs, scored by ``<kind>_<id>`` (None where there is none, e.g. a scripted
+    policy; the build's first executor is its main one, before ``--alt-executor``)."""
+    todo, seen = [stage] if stage in ctx.stages else [], set()
+    while todo:
+        name = todo.pop(0)
+        for i in ctx.stages[name].inputs:
+            if i.startswith(f"{kind}_train_") and (m := f"{kind}_" + i.removeprefix(f"{kind}_train_")) in ctx.stages:
+                return m
+            if i not in seen:
+                seen.add(i)
+                todo.append(i)
+    return None
+
+
 def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
     """The README's headline table: ours (paper) per split."""
     st = st or statuses(ctx)
@@ -570,10 +586,19 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
     if "3D Diffusion Policy" in g:  # the paper's strongest end-to-end baseline
         lines.append(g_row("3D Diffusion Policy (end-to-end) G", g["3D Diffusion Policy"], pt1["3D Diffusion Policy"]))
     lines.append(g_row("scripted oracle grasp success G", g.get("oracle"), ["–"] * 3))
-    lines.append(row("strategy generator accuracy", s_.get("Full"),
-                     lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
-    lines.append(row("executor grasp P-MSE (m²)", e.get("Full"),
-                     lambda r, x: f"{executor(r)[x]['p_mse']:.4f}" if x in executor(r) else "–", [f"{v:.4f}" for v in pp]))
+    def shipped(kind: str, full: str | None, what: str) -> tuple[str | None, str]:
+        """The FlatLab row's own model's metrics stage (the Full recipe's until it has a record) and the row's text."""
+        name = _scored_input(ctx, g.get("FlatLab"), kind)
+        if not _has(st.get(name)):
+            name = full
+        recipe = (ctx.stages[name].report.get("row") or name.removeprefix(f"{kind}_")) if name in ctx.stages else "Full"
+        return name, what + ("" if recipe == "Full" else f" (the {recipe} recipe FlatLab ships; paper: Full)")
+
+    gen, text = shipped("strategy", s_.get("Full"), "strategy generator accuracy")
+    lines.append(row(text, gen, lambda r, x: f"{strategy(r)[x]['acc']:.1f} %" if x in strategy(r) else "–", pa))
+    exe, text = shipped("executor", e.get("Full"), "executor grasp P-MSE (m²)")
+    lines.append(row(text, exe, lambda r, x: f"{executor(r)[x]['p_mse']:.4f}" if x in executor(r) else "–",
+                     [f"{v:.4f}" for v in pp]))  # fmt: skip
     return "\n".join(lines + _fingers_note(lines)) + "\n"
 
 
