@@ -131,7 +131,7 @@ def test_unmet_needs_block_a_stage_and_its_users(monkeypatch, tmp_path):
 def test_dry_run_plan_reports_earlier_runs_and_blocked_stages(capsys):
     assert paper_main(["--preset", "cpu", "--dry-run", "--no-render"]) == 0
     out = capsys.readouterr().out
-    assert re.search(r"strategy_cpu\s+metrics\s+earlier", out)
+    assert re.search(r"eval_act\s+eval\s+earlier\s+\(measured before `flatlab paper`", out)
     assert re.search(r"eval_oracle\s+eval\s+earlier\s+\(earlier run: oracle.json\)", out)
     assert re.search(r"eval_pi0\s+eval\s+blocked\s+\(needs weights \(lerobot/pi0\)\)", out)
     # stages with a measured record are planned only when asked for (--force)
