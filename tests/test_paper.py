@@ -202,8 +202,10 @@ def test_headline_scores_the_models_the_flatlab_row_runs():
     assert R._scored_input(ctx, row, "strategy") == "strategy_" + train.removeprefix("strategy_train_")
     executor = next(i for i in ctx.stages[build].inputs if i.startswith("executor_train_"))  # the main one, first
     assert R._scored_input(ctx, row, "executor") == "executor_" + executor.removeprefix("executor_train_")
-    assert R._scored_input(ctx, "eval_oracle_flush_pads", "strategy") is None and R._scored_input(ctx, None, "strategy") is None
-    assert f"the {ctx.stages[R._scored_input(ctx, row, 'strategy')].report['row']} recipe FlatLab ships" in R.headline(ctx)
+    assert R._scored_input(ctx, "eval_oracle_flush_pads", "strategy") is None
+    assert R._scored_input(ctx, None, "strategy") is None
+    generator = ctx.stages[R._scored_input(ctx, row, "strategy")].report["row"]
+    assert f"the {generator} recipe FlatLab ships" in R.headline(ctx)
 
 
 def test_readme_headline_is_the_rendered_one():
@@ -322,7 +324,8 @@ def test_a_record_is_stale_once_its_input_is_rebuilt_and_a_forced_stage_reruns_i
     assert P.statuses(ctx)[metrics].state == "done"
     assert P.plan(ctx, [metrics], set(), P.statuses(ctx)) == []
     assert P.plan(ctx, [metrics], {train}, P.statuses(ctx)) == [train, metrics]  # downstream of the forced one
-    P.write_json(ctx.record_path(train), {"metrics": {"content_sha256": "rebuilt"}, "paper_stage": {"fingerprint": fps[train]}})
+    rebuilt = {"metrics": {"content_sha256": "rebuilt"}, "paper_stage": {"fingerprint": fps[train]}}
+    P.write_json(ctx.record_path(train), rebuilt)
     st = P.statuses(ctx)
     assert st[metrics].state == "stale" and st[metrics].reason == f"input {train} rebuilt since its record"
     assert P.plan(ctx, [metrics], set(), st) == [metrics]

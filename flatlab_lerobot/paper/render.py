@@ -195,7 +195,8 @@ def _state(s: Status | None) -> str:
         return "not in this preset"
     if s.state == "missing":
         return "not run yet"
-    return {"done": "measured", "earlier": "measured (earlier run)", "stale": f"stale record ({s.reason})"}.get(s.state, s.reason)
+    shown = {"done": "measured", "earlier": "measured (earlier run)", "stale": f"stale record ({s.reason})"}
+    return shown.get(s.state, s.reason)
 
 
 def _pct(k: int, n: int) -> str:
@@ -586,6 +587,7 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
     if "3D Diffusion Policy" in g:  # the paper's strongest end-to-end baseline
         lines.append(g_row("3D Diffusion Policy (end-to-end) G", g["3D Diffusion Policy"], pt1["3D Diffusion Policy"]))
     lines.append(g_row("scripted oracle grasp success G", g.get("oracle"), ["–"] * 3))
+
     def shipped(kind: str, full: str | None, what: str) -> tuple[str | None, str]:
         """The FlatLab row's own model's metrics stage (the Full recipe's until it has a record) and the row's text."""
         name = _scored_input(ctx, g.get("FlatLab"), kind)
