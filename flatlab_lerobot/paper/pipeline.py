@@ -295,9 +295,10 @@ def statuses(ctx: Context, fps: dict[str, str] | None = None) -> dict[str, Statu
             why = next((f"{i}: {out[i].reason}" for i in st.inputs if out[i].state == "blocked"), None)
         meta = (rec or {}).get("paper_stage")
         if meta and meta.get("fingerprint") == fps[name]:
-            # the config is the same; an input rebuilt since (another digest of its data) makes the record stale
+            # the config is the same (the inputs too: they are in the fingerprint); an input rebuilt since (another
+            # digest of its data) makes the record stale
             moved = next((i for i, d in meta.get("input_digests", {}).items()
-                          if i in out and record_digest(out[i].record) not in (None, d)), None)  # fmt: skip
+                          if record_digest(out[i].record) not in (None, d)), None)  # fmt: skip
             out[name] = (Status("stale", f"input {moved} rebuilt since its record", rec, path) if moved
                          else Status("done", record=rec, record_path=path))  # fmt: skip
         elif rec is not None and not meta:
