@@ -208,6 +208,29 @@ def test_headline_scores_the_models_the_flatlab_row_runs():
     assert f"the {generator} recipe FlatLab ships" in R.headline(ctx)
 
 
+def test_headline_dp3_row_prefers_a_run_on_the_flush_pads():
+    """The headline's DP3 row is the default demos' row unless that one ran on the old finger model and the half-turn
+    demos' row did not; with both records old (or both current) it is the default demos' row."""
+    ctx = ctx_for("cpu")
+    st = P.statuses(ctx)
+    g = R._rows(ctx, st, "grasp")
+    default, half = g["3D Diffusion Policy"], g["3D Diffusion Policy, half-turn demos"]
+
+    def line(statuses):
+        return next(x for x in R.headline(ctx, statuses).splitlines() if x.startswith("| 3D Diffusion Policy"))
+
+    def created(name, when):
+        s = st[name]
+        rec = json.loads(json.dumps(s.record))
+        rec.setdefault("paper_stage", {})["created"] = when
+        return P.Status(s.state, s.reason, rec, s.record_path)
+
+    old, new = "2026-11-01T00:00:00+00:00", "2026-12-07T00:00:00+00:00"
+    assert "half-turn demos" in line({**st, default: created(default, old), half: created(half, new)})
+    assert "half-turn demos" not in line({**st, default: created(default, new), half: created(half, new)})
+    assert "half-turn demos" not in line({**st, default: created(default, old), half: created(half, old)})
+
+
 def test_readme_headline_is_the_rendered_one():
     text = (REPO / "README.md").read_text()
     m = re.search(r"<!-- results:headline -->\n(.*?)<!-- /results:headline -->", text, re.S)
