@@ -331,3 +331,43 @@ def test_lerobot_train_then_lerobot_eval(tiny_dataset, tmp_path):
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     info = json.loads((ev / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1 and info["overall"]["pc_success"] == 0.0
+
+
+@pytest.mark.slow
+def test_copy_without_videos_gives_dp3_the_same_samples(tmp_path):
+    """lerobot's own `lerobot-edit-dataset --operation.type=remove_feature` (the cpu preset's
+    ``demos_cpu_half_turn_cloud`` stage) drops the camera videos and keeps every sample DP3 reads: same frames, same
+    clouds, states and actions over DP3's time windows, same statistics."""
+    import numpy as np
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from flatlab_lerobot.collect.collector import collect
+    from flatlab_lerobot.collect.recipe import recipe_from_dict
+
+    recipe = recipe_from_dict({"name": "tiny_dp3", "episodes": 1, "objects": ["ref_box"], "max_steps": 24,
+                               "cameras": ["front", "top"], "image_size": 32, "modalities": ["rgb", "pointcloud"],
+                               "n_points": 256, "seed": 3})  # fmt: skip
+    collect(recipe, tmp_path / "demos", progress=False, log=lambda *a: None)
+    tiny_dataset = tmp_path / "demos" / "tiny_dp3"
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    videos = ["observation.images.front", "observation.images.top"]
+    new = tmp_path / "cloud" / "tiny_dp3"
+    cmd = [str(BIN / "lerobot-edit-dataset"), "--repo_id=tiny_dp3", f"--root={tiny_dataset}", "--new_repo_id=tiny_dp3",
+           f"--new_root={new}", "--operation.type=remove_feature", f"--operation.feature_names={videos}"]  # fmt: skip
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    fps = json.loads((tiny_dataset / "meta" / "info.json").read_text())["fps"]
+    window = {PC: [-1 / fps, 0.0], STATE: [-1 / fps, 0.0], "action": [i / fps for i in range(-1, 3)]}
+    a = LeRobotDataset("tiny_dp3", root=tiny_dataset, delta_timestamps={**window, **{k: window[PC] for k in videos}},
+                       video_backend="pyav")
+    b = LeRobotDataset("tiny_dp3", root=new, delta_timestamps=window)
+    assert set(a.meta.video_keys) == set(videos) and b.meta.video_keys == []
+    assert len(a) == len(b) == 24
+    for i in (0, 1, 11, 23):
+        x, y = a[i], b[i]
+        assert not set(videos) & set(y)
+        for k in (PC, STATE, "action", "action_is_pad", "frame_index", "episode_index"):
+            assert torch.equal(x[k], y[k]), (i, k)
+    for k in (PC, STATE, "action"):
+        for s in ("min", "max", "mean", "std"):
+            np.testing.assert_allclose(a.meta.stats[k][s], b.meta.stats[k][s], rtol=1e-6, err_msg=f"{k} {s}")
