@@ -231,6 +231,30 @@ def test_headline_dp3_row_prefers_a_run_on_the_flush_pads():
     assert "half-turn demos" not in line({**st, default: created(default, old), half: created(half, old)})
 
 
+def test_table1_pools_a_row_over_its_training_seeds(tmp_path):
+    """DP3's half-turn row gets a row pooled over the seeds its recipe was trained with (``seeds_of`` in the preset):
+    the records' successes and trials summed per split, each seed's G beside them, and the headline pools them too;
+    with one seed's record alone there is no pooled row, and the headline is that seed's row."""
+    ctx = ctx_for("cpu")
+    st = P.statuses(ctx)
+    half = R._rows(ctx, st, "grasp")["3D Diffusion Policy, half-turn demos"]
+    runs = R._seed_runs(ctx, st, half)
+    assert [s for s, _ in runs][:2] == [1000, 2000] and runs[0][1] == half
+    recs = [json.loads((RESULTS / f"{n}.json").read_text())["per_split"]["test_beta"] for _, n in runs]
+    k, n = sum(round(r["G"] * r["trials"]) for r in recs), sum(r["trials"] for r in recs)
+    table1 = R.tables(ctx).split("## Table 2")[0]
+    row = next(x for x in table1.splitlines() if "pooled over training seeds 1000 / 2000" in x)
+    assert f"| {100 * k / n:.1f} ({k}/{n}; " in row and f"`{runs[1][1]}`" in row
+    assert f"{len(runs)} training seeds pooled) G | " in R.headline(ctx)
+    # without the seed-2000 record (and any later seed's): the single run only
+    shutil.copytree(RESULTS, tmp_path / "results")
+    for _, name in runs[1:]:
+        (tmp_path / "results" / f"{name}.json").unlink()
+    alone = ctx_for("cpu", tmp_path, tmp_path / "results")
+    assert "pooled over training seeds" not in R.tables(alone)
+    assert "| 3D Diffusion Policy (end-to-end, half-turn demos) G | " in R.headline(alone)
+
+
 def test_readme_headline_is_the_rendered_one():
     text = (REPO / "README.md").read_text()
     m = re.search(r"<!-- results:headline -->\n(.*?)<!-- /results:headline -->", text, re.S)
