@@ -180,9 +180,9 @@ def _old_fingers(s: Status | None) -> bool:
     return not created or str(created) < FLUSH_PADS_SINCE
 
 
-def _mark(s: Status | None) -> str:
-    """A row label's suffix: " †" where the record predates the flush finger pads."""
-    return " †" if _old_fingers(s) else ""
+def _mark(*s: Status | None) -> str:
+    """A row label's suffix: " †" where a record of the row (one per stage it pools) predates the flush finger pads."""
+    return " †" if any(_old_fingers(x) for x in s) else ""
 
 
 def _fingers_note(lines: list[str]) -> list[str]:
@@ -219,9 +219,8 @@ def _seeds_row(ctx: Context, st: dict[str, Status], name: str, text: str, paper_
         kn = _pooled(st, names, split)
         per = " / ".join(_pct(*grasp(st[n].record)["split"][split]["G"]) for n in names) if kn else ""
         cells += [f"{_pct(*kn)} ({kn[0]}/{kn[1]}; {per})" if kn else "–", _paper_pct(paper_row[i]) if paper_row else "–"]
-    mark = " †" if any(_old_fingers(st.get(n)) for n in names) else ""
     what = f"{text}, pooled over training seeds {' / '.join(map(str, seeds))} (after the ';': each seed's G)"
-    return (f"| {what}{mark} | {' | '.join(cells)} | measured ({len(names)} trainings) | "
+    return (f"| {what}{_mark(*(st.get(n) for n in names))} | {' | '.join(cells)} | measured ({len(names)} trainings) | "
             f"{', '.join(f'`{n}`' for n in names)} |")
 
 
@@ -632,8 +631,8 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
             paper = pt1["3D Diffusion Policy"]
             cells = [(f"**{_pct(*kn)} %**" if (kn := _pooled(st, seeds, x)) else "–") + f" (paper {paper[i]})"
                      for i, x in enumerate(SPLITS)]
-            mark = " †" if any(_old_fingers(st.get(n)) for n in seeds) else ""
-            lines.append(f"| 3D Diffusion Policy (end-to-end{t}; {len(seeds)} training seeds pooled) G{mark} | "
+            lines.append(f"| 3D Diffusion Policy (end-to-end{t}; {len(seeds)} training seeds pooled) G"
+                         f"{_mark(*(st.get(n) for n in seeds))} | "
                          + " | ".join(cells) + " |")
         else:
             lines.append(g_row(f"3D Diffusion Policy (end-to-end{t}) G", g[r], pt1["3D Diffusion Policy"]))
