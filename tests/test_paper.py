@@ -208,16 +208,16 @@ def test_headline_scores_the_models_the_flatlab_row_runs():
     assert f"the {generator} recipe FlatLab ships" in R.headline(ctx)
 
 
-def test_headline_dp3_row_prefers_a_run_on_the_flush_pads():
-    """The headline's DP3 row is the default demos' row unless that one ran on the old finger model and the half-turn
-    demos' row did not; with both records old (or both current) it is the default demos' row."""
+def test_headline_dp3_rows_are_the_runs_on_the_flush_pads():
+    """The headline shows each DP3 row (default demos, half-turn demos) measured on the flush finger pads, whatever
+    its score; with both records on the old finger model, the default demos' row alone."""
     ctx = ctx_for("cpu")
     st = P.statuses(ctx)
     g = R._rows(ctx, st, "grasp")
     default, half = g["3D Diffusion Policy"], g["3D Diffusion Policy, half-turn demos"]
 
-    def line(statuses):
-        return next(x for x in R.headline(ctx, statuses).splitlines() if x.startswith("| 3D Diffusion Policy"))
+    def lines(statuses):
+        return [x for x in R.headline(ctx, statuses).splitlines() if x.startswith("| 3D Diffusion Policy")]
 
     def created(name, when):
         s = st[name]
@@ -226,9 +226,12 @@ def test_headline_dp3_row_prefers_a_run_on_the_flush_pads():
         return P.Status(s.state, s.reason, rec, s.record_path)
 
     old, new = "2026-11-01T00:00:00+00:00", "2026-12-07T00:00:00+00:00"
-    assert "half-turn demos" in line({**st, default: created(default, old), half: created(half, new)})
-    assert "half-turn demos" not in line({**st, default: created(default, new), half: created(half, new)})
-    assert "half-turn demos" not in line({**st, default: created(default, old), half: created(half, old)})
+    only_half = lines({**st, default: created(default, old), half: created(half, new)})
+    assert len(only_half) == 1 and "half-turn demos" in only_half[0]
+    both = lines({**st, default: created(default, new), half: created(half, new)})
+    assert len(both) == 2 and "half-turn demos" not in both[0] and "half-turn demos" in both[1]
+    neither = lines({**st, default: created(default, old), half: created(half, old)})
+    assert len(neither) == 1 and "half-turn demos" not in neither[0] and " † |" in neither[0]
 
 
 def test_table1_pools_a_row_over_its_training_seeds(tmp_path):
