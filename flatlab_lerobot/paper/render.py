@@ -627,12 +627,11 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
     for r, t in current or dp3[:1]:
         seeds = [n for _, n in _seed_runs(ctx, st, g[r])]
         if len(seeds) > 1:  # one training's luck moves it (stops 83-84): the row pooled over its training seeds
-            paper = pt1["3D Diffusion Policy"]
-            cells = [(f"**{_pct(*kn)} %**" if (kn := _pooled(st, seeds, x)) else "–") + f" (paper {paper[i]})"
-                     for i, x in enumerate(SPLITS)]
-            lines.append(f"| 3D Diffusion Policy (end-to-end{t}; {len(seeds)} training seeds pooled) G"
-                         f"{_mark(*(st.get(n) for n in seeds))} | "
-                         + " | ".join(cells) + " |")
+            def pooled(_rec, x, seeds=seeds):  # the cell from the seeds' records, not from the first one's
+                return f"**{_pct(*kn)} %**" if (kn := _pooled(st, seeds, x)) else "–"
+
+            lines.append(row(f"3D Diffusion Policy (end-to-end{t}; {len(seeds)} training seeds pooled) G"
+                             f"{_mark(*(st.get(n) for n in seeds))}", seeds[0], pooled, pt1["3D Diffusion Policy"]))
         else:
             lines.append(g_row(f"3D Diffusion Policy (end-to-end{t}) G", g[r], pt1["3D Diffusion Policy"]))
     lines.append(g_row("scripted oracle grasp success G", g.get("oracle"), ["–"] * 3))
