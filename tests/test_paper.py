@@ -136,7 +136,7 @@ def test_dry_run_plan_reports_earlier_runs_and_blocked_stages(capsys):
     assert re.search(r"eval_pi0\s+eval\s+blocked\s+\(needs weights \(lerobot/pi0\)\)", out)
     # stages with a measured record are planned only when asked for (--force)
     assert paper_main(["--preset", "cpu", "--dry-run", "--no-render", "--only", "baseline_train_diffusion",
-                       "strategy_train_lambda_0.1", "--force", "strategy_train_lambda_0.1"]) == 0  # fmt: skip
+                       "strategy_train_lambda_0.1", "--force", "strategy_train_lambda_0.1", "baseline_train_diffusion"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert "$ lerobot-train --config_path=policies/flatlab_strategy/cpu.json" in out
     assert re.search(r"baseline_train_diffusion\s+train\s+run", out)
@@ -158,6 +158,7 @@ def test_tables_from_the_committed_results(tmp_path):
     # rows measured before the flush finger pads (stop 70) carry a mark and the table says what it means
     table1 = text.split("## Table 2")[0]
     assert "| ACT (not in the paper) † |" in table1 and "| 3D Diffusion Policy | 0.0 (0/150) |" in table1  # DP3 re-run, stop 85
+    assert "| Diffusion Policy | 0.0 (0/150) |" in table1  # re-run on the flush finger pads, stop 86
     assert "| FlatLab, one attempt per episode (the paper's protocol: no retry of a failed lift) |" in table1  # stop 79
     assert "| scripted oracle (expert, catalog label) |" in table1 and R.OLD_FINGERS_NOTE in table1
     full = json.loads((RESULTS / "strategy_cpu.json").read_text())["per_split"]
