@@ -627,7 +627,7 @@ def headline(ctx: Context, st: dict[str, Status] | None = None) -> str:
     for r, t in current or dp3[:1]:
         seeds = [n for _, n in _seed_runs(ctx, st, g[r])]
         if len(seeds) > 1:  # one training's luck moves it (stops 83-84): the row pooled over its training seeds
-            def pooled(_rec, x, seeds=seeds):  # the cell from the seeds' records, not from the first one's
+            def pooled(_rec, x):  # the cell from the seeds' records, not from the first one's
                 return f"**{_pct(*kn)} %**" if (kn := _pooled(st, seeds, x)) else "–"
 
             lines.append(row(f"3D Diffusion Policy (end-to-end{t}; {len(seeds)} training seeds pooled) G"
