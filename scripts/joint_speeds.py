@@ -9,7 +9,9 @@ and, at every control step, takes the commanded arm joints (the joint action) an
 stage the policy reports (``move``: a transit; ``flatlab_scripted`` and ``flatlab_unified`` name their stages), it
 writes the largest commanded speed (the change of the joint target over one 0.1-s step) and measured speed, each as a
 multiple of the joint's rated speed (``sim.robot.PANDA_MAX_JOINT_SPEED``), and how many steps went past the rating.
-Prints one line per stage.  The simulator's state is read for the person looking; the policy never sees it.
+The record names the machine, the
+commit and the command line, as the pipeline's records do.  Prints one line per stage.  The simulator's state is read
+for the person looking; the policy never sees it.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 from flatlab_lerobot.env import FlatLabEnv
 from flatlab_lerobot.evaluation.protocol import evaluator_for
+from flatlab_lerobot.paper.pipeline import git_commit, machine
 from flatlab_lerobot.sim.robot import ARM_JOINTS, ARMS, PANDA_MAX_JOINT_SPEED
 
 RATED = np.tile(PANDA_MAX_JOINT_SPEED, 2)  # (14,): left then right, as the joint action orders them
@@ -97,7 +100,8 @@ def main(argv=None) -> int:
                            "steps_measured_over": sum(v["steps_measured_over"] for v in s.values())})  # fmt: skip
     result = {"policy": args.policy, "flags": [a for a in extra if a != "--"], "seed": args.seed, "trials": args.trials,
               "rated_rad_s": PANDA_MAX_JOINT_SPEED.tolist(), "steps": len(rows), "per_stage": summarize(rows),
-              "per_trial": trials, "wall_s": round(time.time() - t0, 1)}  # fmt: skip
+              "per_trial": trials, "wall_s": round(time.time() - t0, 1), "machine": machine(), "git": git_commit(),
+              "command": " ".join(["python", "scripts/joint_speeds.py", *(argv if argv is not None else sys.argv[1:])])}  # fmt: skip
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     print("stage      steps  max cmd/rated (joint)        max meas/rated (joint)       steps over: cmd  meas")

@@ -20,6 +20,7 @@ def test_joint_speeds_per_stage_of_an_expert_trial(script, tmp_path, capsys):
         assert 0.0 <= v["max_commanded_x_rated"] < 5.0 and 0.0 <= v["max_measured_x_rated"] < 5.0
         assert v["max_measured_joint"].split("/")[0] in ("left", "right")
     assert res["rated_rad_s"] == [2.175] * 4 + [2.61] * 3
+    assert res["machine"]["cpu_count"] >= 1 and res["git"]["commit"] and "--objects ref_box" in res["command"]
     assert "move" in capsys.readouterr().out
 
 
